@@ -1,0 +1,1 @@
+"""DeepMind Control generalisation benchmark tasks as gymnasium ids."""

@@ -1,0 +1,1 @@
+"""RL-Zoo style training, evaluation and reporting for SGFD (the ``sgfd-zoo`` command)."""
