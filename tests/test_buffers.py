@@ -1,0 +1,63 @@
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+
+from sb3_sgfd.buffers import DomainReplayBuffer, DomainReplayBufferSamples
+
+OBS_SPACE = spaces.Box(-1e6, 1e6, shape=(3,), dtype=np.float32)
+ACTION_SPACE = spaces.Box(-1, 1, shape=(2,), dtype=np.float32)
+
+
+def fill(buffer: ReplayBuffer, n_steps: int, labels_of_step) -> None:
+    """Transitions whose observation encodes (step, env, domain), so a sample can be checked."""
+    n_envs = buffer.n_envs
+    for step in range(n_steps):
+        labels = labels_of_step(step)
+        obs = np.array([[step, env, labels[env]] for env in range(n_envs)], dtype=np.float32)
+        infos = [{"domain": int(label)} for label in labels]
+        buffer.add(obs, obs + 1, np.zeros((n_envs, 2)), np.ones(n_envs), np.zeros(n_envs), infos)
+
+
+def test_domain_labels_round_trip_with_their_transitions():
+    buffer = DomainReplayBuffer(64, OBS_SPACE, ACTION_SPACE, device="cpu", n_envs=4)
+    # Labels differ from the env index so that a mix-up would show.
+    fill(buffer, 40, lambda step: [(env + step) % 3 for env in range(4)])
+    np.random.seed(0)
+    batch = buffer.sample(256)
+    assert isinstance(batch, DomainReplayBufferSamples)
+    assert batch.domains.dtype == th.int64
+    assert th.equal(batch.domains, batch.observations[:, 2].long())
+    assert th.equal(batch.next_observations, batch.observations + 1)
+    assert set(batch.domains.tolist()) == {0, 1, 2}
+
+
+def test_sub_env_index_is_the_label_when_info_has_none():
+    buffer = DomainReplayBuffer(16, OBS_SPACE, ACTION_SPACE, device="cpu", n_envs=3)
+    obs = np.zeros((3, 3), dtype=np.float32)
+    for _ in range(5):
+        buffer.add(obs, obs, np.zeros((3, 2)), np.zeros(3), np.zeros(3), [{}, {}, {}])
+    assert buffer.domains[:5].tolist() == [[0, 1, 2]] * 5
+    assert buffer.stored_domains().tolist() == [0, 1, 2]
+
+
+@pytest.mark.parametrize("bad", [-1, 1.5, "a"])
+def test_invalid_domain_label_is_rejected(bad):
+    buffer = DomainReplayBuffer(16, OBS_SPACE, ACTION_SPACE, device="cpu", n_envs=1)
+    obs = np.zeros((1, 3), dtype=np.float32)
+    with pytest.raises(ValueError, match=r"info\['domain'\]"):
+        buffer.add(obs, obs, np.zeros((1, 2)), np.zeros(1), np.zeros(1), [{"domain": bad}])
+
+
+def test_samples_match_sb3_replay_buffer_under_the_same_seed():
+    plain = ReplayBuffer(32, OBS_SPACE, ACTION_SPACE, device="cpu", n_envs=2)
+    ours = DomainReplayBuffer(32, OBS_SPACE, ACTION_SPACE, device="cpu", n_envs=2)
+    for buffer in (plain, ours):
+        fill(buffer, 50, lambda step: [0, 1])  # wraps around
+    np.random.seed(3)
+    expected = plain.sample(64)
+    np.random.seed(3)
+    got = ours.sample(64)
+    for name in ("observations", "actions", "next_observations", "dones", "rewards"):
+        assert th.equal(getattr(expected, name), getattr(got, name)), name

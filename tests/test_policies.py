@@ -1,0 +1,78 @@
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+from stable_baselines3 import SAC
+from stable_baselines3.common.utils import ConstantSchedule
+
+from sb3_sgfd.policies import CnnPolicy, MlpPolicy, PixelEncoder, SGFDPolicy
+
+IMAGE_SPACE = spaces.Box(0, 255, shape=(9, 32, 32), dtype=np.uint8)
+ACTION_SPACE = spaces.Box(-1, 1, shape=(3,), dtype=np.float32)
+
+
+def make_policy(**kwargs) -> SGFDPolicy:
+    kwargs.setdefault("net_arch", [32, 32])
+    return CnnPolicy(IMAGE_SPACE, ACTION_SPACE, ConstantSchedule(1e-3), **kwargs)
+
+
+def test_pixel_encoder_is_the_papers_architecture():
+    encoder = PixelEncoder(spaces.Box(0, 255, shape=(9, 84, 84), dtype=np.uint8))
+    convs = [layer for layer in encoder.convs if isinstance(layer, th.nn.Conv2d)]
+    assert [conv.stride for conv in convs] == [(2, 2), (1, 1), (1, 1), (1, 1)]
+    assert {conv.kernel_size for conv in convs} == {(3, 3)}
+    assert {conv.out_channels for conv in convs} == {32}
+    assert isinstance(encoder.trunk[1], th.nn.LayerNorm) and isinstance(encoder.trunk[2], th.nn.Tanh)
+    z = encoder(th.rand(5, 9, 84, 84))
+    assert z.shape == (5, 50)
+    assert z.abs().max() < 1
+
+
+def test_encoder_is_shared_and_trained_by_the_critic_only():
+    policy = make_policy()
+    assert policy.actor.features_extractor is policy.critic.features_extractor
+    assert policy.critic_target.features_extractor is not policy.critic.features_extractor
+    encoder_params = {id(p) for p in policy.critic.features_extractor.parameters()}
+    actor_opt = {id(p) for group in policy.actor.optimizer.param_groups for p in group["params"]}
+    critic_opt = {id(p) for group in policy.critic.optimizer.param_groups for p in group["params"]}
+    assert encoder_params <= critic_opt
+    assert not encoder_params & actor_opt
+
+    obs = th.randint(0, 256, (4, *IMAGE_SPACE.shape)).float() / 255
+    actions, log_prob = policy.actor.action_log_prob(obs)
+    (log_prob.sum() + actions.sum()).backward()
+    assert all(p.grad is None for p in policy.critic.features_extractor.parameters())
+    assert any(p.grad is not None for p in policy.actor.latent_pi.parameters())
+
+    q1, _ = policy.critic(obs, actions.detach())
+    q1.sum().backward()
+    grads = [p.grad for p in policy.critic.features_extractor.parameters()]
+    assert all(g is not None for g in grads) and any(g.abs().sum() > 0 for g in grads)
+
+
+def test_default_features_extractor_follows_the_observation_space():
+    state_space = spaces.Box(-np.inf, np.inf, shape=(7,), dtype=np.float32)
+    lr = ConstantSchedule(1e-3)
+    assert isinstance(SGFDPolicy(IMAGE_SPACE, ACTION_SPACE, lr, net_arch=[8]).actor.features_extractor, PixelEncoder)
+    assert not isinstance(
+        SGFDPolicy(state_space, ACTION_SPACE, lr, net_arch=[8]).actor.features_extractor, PixelEncoder
+    )
+    assert not isinstance(MlpPolicy(state_space, ACTION_SPACE, lr, net_arch=[8]).actor.features_extractor, PixelEncoder)
+    assert SGFDPolicy(state_space, ACTION_SPACE, lr).net_args["net_arch"] == [1024, 1024]
+
+
+def test_separate_encoders_are_refused_with_a_clear_message():
+    with pytest.raises(ValueError, match="share_features_extractor"):
+        make_policy(share_features_extractor=False)
+
+
+def test_plain_sac_trains_and_reloads_with_the_sgfd_policy(tmp_path):
+    model = SAC(MlpPolicy, "Pendulum-v1", learning_starts=20, batch_size=16, policy_kwargs={"net_arch": [16]}, seed=0)
+    model.learn(60)
+    assert isinstance(model.policy, MlpPolicy)
+    obs = model.env.observation_space.sample()[None]
+    model.save(tmp_path / "sac")
+    loaded = SAC.load(tmp_path / "sac")
+    assert isinstance(loaded.policy, MlpPolicy)
+    assert loaded.policy.actor.features_extractor is loaded.policy.critic.features_extractor
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
