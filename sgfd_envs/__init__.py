@@ -1,1 +1,30 @@
-"""DeepMind Control generalisation benchmark tasks as gymnasium ids."""
+"""DeepMind Control generalisation benchmark tasks as gymnasium ids.
+
+``import sgfd_envs`` registers the ids of :data:`SGFD_IDS`:
+
+- ``SGFD/{walker-walk,cheetah-run,finger-spin,walker-run,finger-turn}-v0``: distracting backgrounds
+  (splits ``train``, ``test``);
+- ``SGFD/MT-...-v0``: modified morphology (splits ``train``, ``interpolation``, ``extrapolation``).
+"""
+
+import os
+import sys
+
+# MuJoCo picks its OpenGL backend when dm_control is first imported; EGL renders with no display and
+# no GPU (Mesa llvmpipe). A value the user set wins.
+if sys.platform.startswith("linux"):
+    os.environ.setdefault("MUJOCO_GL", "egl")
+
+# Imported after the line above: it loads dm_control.
+from sgfd_envs.registry import (
+    SGFD_IDS,
+    make_domain_vec_env,
+    n_domains,
+    register_envs,
+    splits,
+    test_splits,
+)
+
+register_envs()
+
+__all__ = ["SGFD_IDS", "make_domain_vec_env", "n_domains", "splits", "test_splits"]

@@ -1,0 +1,340 @@
+"""Background sources (task-irrelevant variation) and compositing.
+
+A source is a sequence of ``n_frames`` RGB frames (uint8, height x width x 3) read by index; the env
+starts at a random index on reset and advances one frame per step, wrapping around.
+
+- :class:`ProceduralBackground`, the default: moving natural-looking (1/f noise) colour textures,
+  deterministic per seed, from disjoint train and test seed banks. Needs no download.
+- :class:`VideoBackground`: the first ``frame_budget`` frames of a video file, read with OpenCV
+  (e.g. the Kinetics clips of DBC and AMBS).
+- :class:`ImageBackground`: one still image.
+
+A user's folder (``background_dir``) either has ``train/`` and ``test/`` subfolders, one source per
+file, or is flat: its sorted files give the first four training sources and the rest the test ones.
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+from typing import Protocol
+
+import cv2
+import numpy as np
+
+BACKGROUND_SPLITS = ("train", "test")
+# Disjoint seed banks: a test texture is never a training one.
+PROCEDURAL_SEEDS: dict[str, tuple[int, ...]] = {"train": (0, 1, 2, 3), "test": (1000, 1001, 1002, 1003)}
+TRAIN_SOURCES_IN_FLAT_FOLDER = 4
+DEFAULT_FRAME_BUDGET = 1000
+
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp", ".tif", ".tiff")
+
+
+class BackgroundSource(Protocol):
+    """A finite sequence of background frames."""
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames; indices wrap around it."""
+        ...
+
+    def frame(self, index: int) -> np.ndarray:
+        """Frame ``index % n_frames`` as uint8 (height, width, 3) RGB."""
+        ...
+
+
+def composite(rendered: np.ndarray, background_mask: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """Put ``background`` where ``background_mask`` is set; every other pixel stays as rendered.
+
+    :param rendered: uint8 (H, W, 3) render of the robot with no floor and no skybox
+    :param background_mask: bool (H, W), True where nothing was drawn
+    :param background: uint8 (H, W, 3) background frame
+    """
+    return np.where(background_mask[..., np.newaxis], background, rendered)
+
+
+def fit_frame(frame_bgr: np.ndarray, height: int, width: int, grayscale: bool) -> np.ndarray:
+    """Centre-crop an OpenCV frame to the observation's aspect ratio, resize it, and make it RGB.
+
+    :param frame_bgr: uint8 (h, w, 3) BGR frame as OpenCV reads it
+    :param height: output height
+    :param width: output width
+    :param grayscale: replicate the luma into the three channels (as DBC does)
+    """
+    rows, cols = frame_bgr.shape[:2]
+    if cols * height > rows * width:
+        keep = max(1, round(rows * width / height))
+        start = (cols - keep) // 2
+        frame_bgr = frame_bgr[:, start : start + keep]
+    else:
+        keep = max(1, round(cols * height / width))
+        start = (rows - keep) // 2
+        frame_bgr = frame_bgr[start : start + keep]
+    resized = cv2.resize(frame_bgr, (width, height), interpolation=cv2.INTER_AREA)
+    if grayscale:
+        return np.repeat(cv2.cvtColor(resized, cv2.COLOR_BGR2GRAY)[..., np.newaxis], 3, axis=2)
+    return cv2.cvtColor(resized, cv2.COLOR_BGR2RGB)
+
+
+# --- built-in procedural source ------------------------------------------------------------------
+
+
+def _noise_field(rng: np.random.Generator, size: int, spectral_slope: float) -> np.ndarray:
+    """A tileable (periodic) noise image in [0, 1] with power spectrum 1/f**spectral_slope.
+
+    Natural images have a slope near 2; the inverse FFT makes the field wrap seamlessly.
+    """
+    fy = np.fft.fftfreq(size)[:, np.newaxis]
+    fx = np.fft.rfftfreq(size)[np.newaxis, :]
+    radius = np.hypot(fx, fy)
+    radius[0, 0] = np.inf
+    amplitude = radius ** (-spectral_slope / 2)
+    spectrum = amplitude * (rng.standard_normal(radius.shape) + 1j * rng.standard_normal(radius.shape))
+    field = np.fft.irfft2(spectrum, s=(size, size))
+    low, high = np.percentile(field, (1, 99))
+    return np.clip((field - low) / (high - low), 0.0, 1.0)
+
+
+def _colour_texture(rng: np.random.Generator, size: int, spectral_slope: float) -> np.ndarray:
+    """A tileable uint8 RGB texture: one noise field through a random colour ramp, shaded by another."""
+    anchors = rng.uniform(0, 255, size=(5, 3))
+    levels = np.linspace(0.0, 1.0, len(anchors))
+    ramp = np.stack([np.interp(np.linspace(0, 1, 256), levels, anchors[:, c]) for c in range(3)], axis=1)
+    hue = (_noise_field(rng, size, spectral_slope) * 255).astype(np.uint8)
+    shade = 0.55 + 0.45 * _noise_field(rng, size, spectral_slope + 0.5)
+    return np.clip(ramp[hue] * shade[..., np.newaxis], 0, 255).astype(np.uint8)
+
+
+def _lissajous_path(rng: np.random.Generator, n_frames: int, extent: int, cycles: tuple[int, int]) -> np.ndarray:
+    """Integer (row, col) offsets along a smooth closed curve that returns to its start after n_frames."""
+    t = np.arange(n_frames) / n_frames
+    phases = rng.uniform(0, 2 * np.pi, size=2)
+    rows = extent / 2 * (1 + np.sin(2 * np.pi * cycles[0] * t + phases[0]))
+    cols = extent / 2 * (1 + np.sin(2 * np.pi * cycles[1] * t + phases[1]))
+    return np.stack([rows, cols], axis=1).round().astype(np.int64) % extent
+
+
+class ProceduralBackground:
+    """Two layers of moving colour noise: a slow backdrop and faster drifting blobs in front of it.
+
+    :param seed: texture seed; the same seed always gives the same frames
+    :param height: frame height
+    :param width: frame width
+    :param n_frames: length of the (looping) sequence
+    :param grayscale: replicate the luma into the three channels
+    """
+
+    def __init__(self, seed: int, height: int, width: int, n_frames: int = DEFAULT_FRAME_BUDGET,
+                 grayscale: bool = False) -> None:
+        self.seed, self.height, self.width, self._n_frames = seed, height, width, n_frames
+        self.grayscale = grayscale
+        self._layers: tuple[np.ndarray, ...] | None = None
+
+    @property
+    def n_frames(self) -> int:
+        return self._n_frames
+
+    def _build(self) -> tuple[np.ndarray, ...]:
+        rng = np.random.default_rng(self.seed)
+        size = 4 * max(self.height, self.width)
+        backdrop = _colour_texture(rng, size, spectral_slope=2.8)
+        blobs = _colour_texture(rng, size, spectral_slope=2.3)
+        # Soft-edged blob mask: a smooth field pushed through a steep ramp around its median.
+        mask_field = _noise_field(rng, size, spectral_slope=3.0)
+        blob_alpha = (np.clip((mask_field - 0.5) * 6 + 0.5, 0, 1) * 255).astype(np.uint16)
+        if self.grayscale:
+            backdrop, blobs = (np.repeat(cv2.cvtColor(t, cv2.COLOR_RGB2GRAY)[..., None], 3, axis=2)
+                               for t in (backdrop, blobs))
+        # Pad by one frame so any offset in [0, size) crops a contiguous window of the tiled texture.
+        pad = ((0, self.height), (0, self.width))
+        backdrop = np.pad(backdrop, (*pad, (0, 0)), mode="wrap").astype(np.uint16)
+        blobs = np.pad(blobs, (*pad, (0, 0)), mode="wrap").astype(np.uint16)
+        blob_alpha = np.pad(blob_alpha, pad, mode="wrap")[..., np.newaxis]
+        backdrop_path = _lissajous_path(rng, self._n_frames, size, cycles=(1, 2))
+        blobs_path = _lissajous_path(rng, self._n_frames, size, cycles=(3, 2))
+        return backdrop, blobs, blob_alpha, backdrop_path, blobs_path
+
+    def frame(self, index: int) -> np.ndarray:
+        if self._layers is None:
+            self._layers = self._build()
+        backdrop, blobs, blob_alpha, backdrop_path, blobs_path = self._layers
+        index %= self._n_frames
+        (r0, c0), (r1, c1) = backdrop_path[index], blobs_path[index]
+        rows0, cols0 = slice(r0, r0 + self.height), slice(c0, c0 + self.width)
+        rows1, cols1 = slice(r1, r1 + self.height), slice(c1, c1 + self.width)
+        alpha = blob_alpha[rows1, cols1]
+        mixed = blobs[rows1, cols1] * alpha + backdrop[rows0, cols0] * (255 - alpha)
+        return (mixed // 255).astype(np.uint8)
+
+
+# --- file sources ---------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=32)
+def _decode_video(path: str, height: int, width: int, frame_budget: int, grayscale: bool) -> np.ndarray:
+    """Up to ``frame_budget`` fitted frames of a video, cached so envs sharing a source share memory."""
+    capture = cv2.VideoCapture(path)
+    frames = []
+    try:
+        while len(frames) < frame_budget:
+            ok, frame = capture.read()
+            if not ok:
+                break
+            frames.append(fit_frame(frame, height, width, grayscale))
+    finally:
+        capture.release()
+    if not frames:
+        raise ValueError(f"background_dir: OpenCV could not read any frame of the video {path!r}")
+    stacked = np.stack(frames)
+    stacked.flags.writeable = False
+    return stacked
+
+
+class VideoBackground:
+    """The first ``frame_budget`` frames of a video file, decoded on first use.
+
+    :param path: video file readable by ``cv2.VideoCapture``
+    :param height: frame height
+    :param width: frame width
+    :param frame_budget: most frames kept (DBC: 1000)
+    :param grayscale: replicate the luma into the three channels (DBC's setting)
+    """
+
+    def __init__(self, path: str | Path, height: int, width: int, frame_budget: int = DEFAULT_FRAME_BUDGET,
+                 grayscale: bool = False) -> None:
+        self.path = str(path)
+        self.height, self.width, self.frame_budget, self.grayscale = height, width, frame_budget, grayscale
+        self._check_readable()
+
+    def _check_readable(self) -> None:
+        """Fail at construction, not at the first reset, if OpenCV cannot decode the file."""
+        capture = cv2.VideoCapture(self.path)
+        try:
+            readable = capture.isOpened() and capture.read()[0]
+        finally:
+            capture.release()
+        if not readable:
+            raise ValueError(f"background_dir: OpenCV could not read any frame of the video {self.path!r}")
+
+    @property
+    def _frames(self) -> np.ndarray:
+        return _decode_video(self.path, self.height, self.width, self.frame_budget, self.grayscale)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self._frames)
+
+    def frame(self, index: int) -> np.ndarray:
+        frames = self._frames
+        return frames[index % len(frames)]
+
+
+class ImageBackground:
+    """One still image as a one-frame source.
+
+    :param path: image file readable by ``cv2.imread``
+    :param height: frame height
+    :param width: frame width
+    :param grayscale: replicate the luma into the three channels
+    """
+
+    def __init__(self, path: str | Path, height: int, width: int, grayscale: bool = False) -> None:
+        self.path = str(path)
+        image = cv2.imread(self.path, cv2.IMREAD_COLOR)
+        if image is None:
+            raise ValueError(f"background_dir: OpenCV could not read the image {self.path!r}")
+        self._frame = fit_frame(image, height, width, grayscale)
+        self._frame.flags.writeable = False
+
+    @property
+    def n_frames(self) -> int:
+        return 1
+
+    def frame(self, index: int) -> np.ndarray:
+        return self._frame
+
+
+# --- splits and domains ---------------------------------------------------------------------------
+
+
+def check_background_split(split: str) -> str:
+    """Return ``split`` if it is a background split, else raise.
+
+    :param split: ``"train"`` or ``"test"``
+    """
+    if split not in BACKGROUND_SPLITS:
+        raise ValueError(f"split must be one of {BACKGROUND_SPLITS} for background ids, got {split!r}")
+    return split
+
+
+def _media_files(folder: Path) -> tuple[Path, ...]:
+    return tuple(sorted(p for p in folder.iterdir()
+                        if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES + IMAGE_SUFFIXES))
+
+
+def background_files(background_dir: str | Path) -> dict[str, tuple[Path, ...]]:
+    """The source files of each split in a user's folder.
+
+    :param background_dir: folder with ``train/`` and ``test/`` subfolders, or a flat folder of at
+        least five videos/images (the first four, sorted by name, are the training sources)
+    """
+    folder = Path(background_dir).expanduser()
+    if not folder.is_dir():
+        raise FileNotFoundError(f"background_dir {str(folder)!r} is not an existing folder")
+    suffixes = ", ".join(VIDEO_SUFFIXES + IMAGE_SUFFIXES)
+    subfolders = {split: folder / split for split in BACKGROUND_SPLITS}
+    present = [split for split, sub in subfolders.items() if sub.is_dir()]
+    if present:
+        if len(present) != len(BACKGROUND_SPLITS):
+            raise ValueError(f"background_dir {str(folder)!r} has {present[0]}/ but no "
+                             f"{({*BACKGROUND_SPLITS} - {*present}).pop()}/: give both or neither")
+        files = {split: _media_files(sub) for split, sub in subfolders.items()}
+        for split, found in files.items():
+            if not found:
+                raise ValueError(f"background_dir {str(subfolders[split])!r} holds no video or image ({suffixes})")
+        return files
+    found = _media_files(folder)
+    if len(found) <= TRAIN_SOURCES_IN_FLAT_FOLDER:
+        raise ValueError(
+            f"background_dir {str(folder)!r} holds {len(found)} videos/images ({suffixes}); a flat folder "
+            f"needs at least {TRAIN_SOURCES_IN_FLAT_FOLDER + 1} ({TRAIN_SOURCES_IN_FLAT_FOLDER} training, "
+            "the rest for testing), or use train/ and test/ subfolders"
+        )
+    return {"train": found[:TRAIN_SOURCES_IN_FLAT_FOLDER], "test": found[TRAIN_SOURCES_IN_FLAT_FOLDER:]}
+
+
+def n_background_domains(split: str, background_dir: str | Path | None = None) -> int:
+    """Number of background sources (domains) in a split.
+
+    :param split: ``"train"`` or ``"test"``
+    :param background_dir: a user's folder, or None for the built-in procedural banks
+    """
+    check_background_split(split)
+    if background_dir is None:
+        return len(PROCEDURAL_SEEDS[split])
+    return len(background_files(background_dir)[split])
+
+
+def make_background(split: str, domain: int, height: int, width: int, background_dir: str | Path | None = None,
+                    frame_budget: int = DEFAULT_FRAME_BUDGET, grayscale: bool = False) -> BackgroundSource:
+    """The background source of one domain; frames are produced or decoded on first use.
+
+    :param split: ``"train"`` or ``"test"``
+    :param domain: index of the source within the split
+    :param height: frame height
+    :param width: frame width
+    :param background_dir: a user's folder of videos/images, or None for the built-in procedural banks
+    :param frame_budget: most frames per source (DBC: 1000)
+    :param grayscale: replicate the luma into the three channels (DBC's setting)
+    """
+    if isinstance(frame_budget, bool) or not isinstance(frame_budget, (int, np.integer)) or frame_budget < 1:
+        raise ValueError(f"frame_budget must be a positive int, got {frame_budget!r}")
+    check_background_split(split)
+    if background_dir is None:
+        return ProceduralBackground(PROCEDURAL_SEEDS[split][domain], height, width, int(frame_budget), grayscale)
+    path = background_files(background_dir)[split][domain]
+    if path.suffix.lower() in VIDEO_SUFFIXES:
+        return VideoBackground(path, height, width, int(frame_budget), grayscale)
+    return ImageBackground(path, height, width, grayscale)

@@ -1,0 +1,288 @@
+"""A dm_control task as a gymnasium env: action repeat, pixels or state, fast headless rendering.
+
+Rendering reuses one MuJoCo scene per env with shadows, reflections and multisampling off. With a
+background source the floor (every plane geom) and the skybox are hidden too, and colour and depth
+are read back in the same pass: background pixels are exactly those where the depth buffer kept its
+cleared value, and every robot pixel stays as MuJoCo drew it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from dm_control.mujoco import Physics, wrapper
+from dm_control.rl import control
+from gymnasium import spaces
+
+from sgfd_envs.backgrounds import BackgroundSource, composite
+
+EPISODE_CONTROL_STEPS = 1000
+OBS_TYPES = ("pixels", "state")
+# OpenGL clears the depth buffer to the far plane, 1.0; no drawn geom reaches it.
+_CLEARED_DEPTH = 1.0
+
+
+@dataclass(frozen=True)
+class DomainLabel:
+    """Which domain of which split an env is, and for MT ids its morphology.
+
+    :param split: split name (``"train"``, ``"test"``, ``"interpolation"``, ...), None for a
+        single MT ``setting`` picked outside the splits
+    :param domain: index of the domain within the split (``info["domain"]``)
+    :param n_domains: number of domains in the split
+    :param setting: MT setting 1..10, None for background ids
+    :param morphology_parameter: name of the varied length, e.g. ``"torso_length"`` (MT only)
+    :param morphology_value: that length in metres (MT only)
+    """
+
+    split: str | None
+    domain: int
+    n_domains: int
+    setting: int | None = None
+    morphology_parameter: str | None = None
+    morphology_value: float | None = None
+
+
+class CameraRenderer:
+    """Renders one fixed camera of a Physics into reused buffers.
+
+    :param physics: the dm_control physics; its offscreen buffer is configured here, before its
+        rendering context exists
+    :param size: image height and width in pixels
+    :param camera_id: index of a camera defined in the model
+    :param hide_backdrop: hide plane geoms and the skybox and report their pixels as background
+    """
+
+    # MuJoCo draws geom groups 0..5; moving the planes to the last one lets one option hide them.
+    _HIDDEN_GROUP = mujoco.mjNGROUP - 1
+
+    def __init__(self, physics: Physics, size: int, camera_id: int, hide_backdrop: bool) -> None:
+        model = physics.model
+        if not 0 <= camera_id < model.ncam:
+            raise ValueError(f"camera_id must be in 0..{model.ncam - 1} for this model, got {camera_id!r}")
+        # Without multisampling, edge pixels are either robot or cleared, never a blend with the
+        # cleared colour: the depth mask is exact and rendering is ~3x faster (measured, llvmpipe).
+        model.vis.quality.offsamples = 0
+        model.vis.global_.offwidth = max(model.vis.global_.offwidth, size)
+        model.vis.global_.offheight = max(model.vis.global_.offheight, size)
+        self._physics = physics
+        self._hide_backdrop = hide_backdrop
+        self._scene = wrapper.MjvScene(model=model)
+        self._option = wrapper.MjvOption()
+        self._perturb = wrapper.MjvPerturb()
+        self._camera = wrapper.MjvCamera()
+        self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self._camera.fixedcamid = camera_id
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
+        if hide_backdrop:
+            planes = model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE
+            if np.any(model.geom_group[~planes] == self._HIDDEN_GROUP):
+                raise RuntimeError(f"geom group {self._HIDDEN_GROUP} is in use; cannot hide the floor with it")
+            model.geom_group[planes] = self._HIDDEN_GROUP
+            self._option.geomgroup[self._HIDDEN_GROUP] = 0
+            self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
+        self._rect = mujoco.MjrRect(0, 0, size, size)
+        self._rgb = np.empty((size, size, 3), dtype=np.uint8)
+        self._depth = np.empty((size, size), dtype=np.float32) if hide_backdrop else None
+        contexts = physics.contexts
+        with contexts.gl.make_current() as ctx:
+            ctx.call(mujoco.mjr_setBuffer, mujoco.mjtFramebuffer.mjFB_OFFSCREEN, contexts.mujoco.ptr)
+
+    def _draw_and_read(self) -> None:
+        context = self._physics.contexts.mujoco.ptr
+        mujoco.mjr_render(self._rect, self._scene.ptr, context)
+        mujoco.mjr_readPixels(self._rgb, self._depth, self._rect, context)
+
+    def render(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """Render the current state.
+
+        :return: a new uint8 (H, W, 3) RGB image, top row first, and with ``hide_backdrop`` the
+            bool (H, W) mask of background pixels (else None)
+        """
+        physics = self._physics
+        mujoco.mjv_updateScene(physics.model.ptr, physics.data.ptr, self._option.ptr, self._perturb.ptr,
+                               self._camera.ptr, mujoco.mjtCatBit.mjCAT_ALL, self._scene.ptr)
+        with physics.contexts.gl.make_current() as ctx:
+            ctx.call(self._draw_and_read)
+        # OpenGL's first row is the bottom of the image.
+        rgb = self._rgb[::-1].copy()
+        if self._depth is None:
+            return rgb, None
+        return rgb, self._depth[::-1] == _CLEARED_DEPTH
+
+
+class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
+    """A dm_control task as a gymnasium env.
+
+    Episodes last ``EPISODE_CONTROL_STEPS`` (1000) dm_control steps, i.e. 500 agent steps at action
+    repeat 2, and end with ``truncated=True`` (``terminated`` only if dm_control's discount is 0).
+    The reward of an agent step is the sum over its repeats. ``reset(seed=s)`` seeds the task's
+    initial state and the background start, so the same actions reproduce the same episode.
+
+    :param dm_env: dm_control environment with no time limit (see :func:`sgfd_envs.domains.load`)
+    :param label: split, domain and morphology of this env
+    :param action_repeat: dm_control steps per agent step
+    :param obs_type: ``"pixels"`` (uint8 (size, size, 3)) or ``"state"`` (float32 flat vector of
+        dm_control's observation dict, in its order)
+    :param image_size: height and width of pixel observations and renders
+    :param background: source of background frames behind the robot, None to render floor and skybox
+    :param camera_id: model camera to render
+    :param render_mode: None or ``"rgb_array"`` (``render()`` returns the current frame)
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 25}
+
+    def __init__(self, dm_env: control.Environment, label: DomainLabel, *, action_repeat: int = 2,
+                 obs_type: str = "pixels", image_size: int = 84, background: BackgroundSource | None = None,
+                 camera_id: int = 0, render_mode: str | None = None) -> None:
+        if obs_type not in OBS_TYPES:
+            raise ValueError(f"obs_type must be one of {OBS_TYPES}, got {obs_type!r}")
+        if isinstance(image_size, bool) or not isinstance(image_size, (int, np.integer)) or image_size < 1:
+            raise ValueError(f"image_size must be a positive int, got {image_size!r}")
+        if isinstance(action_repeat, bool) or not isinstance(action_repeat, int) or action_repeat < 1:
+            raise ValueError(f"action_repeat must be a positive int, got {action_repeat!r}")
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self._dm_env = dm_env
+        self.label = label
+        self.action_repeat = action_repeat
+        self.obs_type = obs_type
+        self.image_size = int(image_size)
+        self.render_mode = render_mode
+        self._background = background
+        self._renderer = CameraRenderer(dm_env.physics, self.image_size, camera_id,
+                                        hide_backdrop=background is not None)
+        self.metadata = {**self.metadata, "render_fps": round(1 / (dm_env.control_timestep() * action_repeat))}
+
+        action_spec = dm_env.action_spec()
+        self.action_space = spaces.Box(action_spec.minimum.astype(np.float32),
+                                       action_spec.maximum.astype(np.float32), dtype=np.float32)
+        if obs_type == "pixels":
+            self.observation_space = spaces.Box(0, 255, (self.image_size, self.image_size, 3), dtype=np.uint8)
+        else:
+            state_size = sum(int(np.prod(spec.shape)) for spec in dm_env.observation_spec().values())
+            self.observation_space = spaces.Box(-np.inf, np.inf, (state_size,), dtype=np.float32)
+
+        self._control_steps = 0
+        self._agent_steps = 0
+        # Where the background sequence starts, as a fraction of its length: drawn at reset, turned into
+        # a frame index only when a frame is needed, so state observations never decode a video.
+        self._background_phase = 0.0
+        self._last_frame: np.ndarray | None = None
+        self._closed = False
+
+    # --- labels -----------------------------------------------------------------------------------
+
+    @property
+    def domain(self) -> int:
+        """Index of this env's domain within its split (``info["domain"]``)."""
+        return self.label.domain
+
+    @property
+    def split(self) -> str | None:
+        """Name of this env's split."""
+        return self.label.split
+
+    @property
+    def n_domains(self) -> int:
+        """Number of domains in this env's split."""
+        return self.label.n_domains
+
+    @property
+    def setting(self) -> int | None:
+        """MT setting 1..10 (None for background ids)."""
+        return self.label.setting
+
+    @property
+    def morphology_parameter(self) -> str | None:
+        """Name of the length MT varies, e.g. ``"torso_length"`` (None for background ids)."""
+        return self.label.morphology_parameter
+
+    @property
+    def morphology_value(self) -> float | None:
+        """The varied length in metres (None for background ids)."""
+        return self.label.morphology_value
+
+    @property
+    def physics(self) -> Physics:
+        """The dm_control physics (read it; changing it mid-episode breaks reproducibility)."""
+        return self._dm_env.physics
+
+    def _info(self) -> dict[str, int]:
+        info = {"domain": self.label.domain}
+        if self.label.setting is not None:
+            info["setting"] = self.label.setting
+        return info
+
+    # --- observations -----------------------------------------------------------------------------
+
+    def _frame(self) -> np.ndarray:
+        rgb, background_mask = self._renderer.render()
+        if self._background is None:
+            return rgb
+        start = int(self._background_phase * self._background.n_frames)
+        index = start + self._agent_steps
+        return composite(rgb, background_mask, self._background.frame(index))
+
+    def _observation(self, dm_observation: dict[str, np.ndarray]) -> np.ndarray:
+        if self.obs_type == "state":
+            self._last_frame = None
+            return np.concatenate([np.asarray(value, dtype=np.float32).ravel()
+                                   for value in dm_observation.values()])
+        self._last_frame = self._frame()
+        return self._last_frame.copy()
+
+    # --- gymnasium API ----------------------------------------------------------------------------
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[np.ndarray, dict[str, int]]:
+        """Start an episode; ``seed`` seeds the initial state and the background start.
+
+        :param seed: seed of this env's ``np_random``
+        :param options: unused
+        """
+        super().reset(seed=seed)
+        self._dm_env.task.random.seed(int(self.np_random.integers(2**31)))
+        time_step = self._dm_env.reset()
+        self._control_steps = 0
+        self._agent_steps = 0
+        if self._background is not None:
+            self._background_phase = float(self.np_random.random())
+        return self._observation(time_step.observation), self._info()
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, int]]:
+        """Apply ``action`` for ``action_repeat`` dm_control steps (fewer if the episode ends).
+
+        :param action: float array in the action space
+        """
+        reward = 0.0
+        terminated = truncated = False
+        for _ in range(self.action_repeat):
+            time_step = self._dm_env.step(action)
+            self._control_steps += 1
+            reward += time_step.reward or 0.0
+            terminated = bool(time_step.discount == 0.0)
+            truncated = self._control_steps >= EPISODE_CONTROL_STEPS and not terminated
+            if terminated or truncated:
+                break
+        self._agent_steps += 1
+        return self._observation(time_step.observation), float(reward), terminated, truncated, self._info()
+
+    def render(self) -> np.ndarray | None:
+        """The current frame (the pixel observation, or a fresh render for state observations)."""
+        if self.render_mode is None:
+            return None
+        if self._last_frame is not None:
+            return self._last_frame.copy()
+        return self._frame()
+
+    def close(self) -> None:
+        """Free the physics and its rendering context; calling it twice is fine."""
+        if not self._closed:
+            self._closed = True
+            self._dm_env.physics.free()

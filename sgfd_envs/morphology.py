@@ -1,0 +1,136 @@
+"""Morphology settings of the MT ids and the XML editing helpers the robots share.
+
+Each MT robot has one task-relevant length with ten monotone settings. Setting ``k`` scales the
+default length by ``(7 + k) / 10``: 0.8, 0.9, 1.0 (the unmodified dm_control robot), ..., 1.7.
+The robot files in :mod:`sgfd_envs.domains` apply the scale to the dm_control XML in code.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from dm_control.suite import common
+
+N_SETTINGS = 10
+SETTINGS = tuple(range(1, N_SETTINGS + 1))
+
+# Paper: four training robots drawn from settings 1..5, extrapolation = the tenth setting.
+# Setting 3 (the unmodified robot) lies between the training ones, hence "interpolation".
+DEFAULT_SPLIT_SETTINGS: dict[str, tuple[int, ...]] = {
+    "train": (1, 2, 4, 5),
+    "interpolation": (3,),
+    "extrapolation": (10,),
+}
+MORPHOLOGY_SPLITS = tuple(DEFAULT_SPLIT_SETTINGS)
+
+
+def check_setting(setting: int) -> int:
+    """Return ``setting`` if it is one of the ten settings, else raise.
+
+    :param setting: morphology setting, an int in 1..10
+    """
+    if isinstance(setting, bool) or not isinstance(setting, (int, np.integer)) or setting not in SETTINGS:
+        raise ValueError(f"setting must be an int in 1..{N_SETTINGS}, got {setting!r}")
+    return int(setting)
+
+
+def setting_scale(setting: int) -> float:
+    """Scale factor of the default length for one setting: 0.8 for setting 1 up to 1.7 for setting 10.
+
+    :param setting: morphology setting, an int in 1..10
+    """
+    return (7 + check_setting(setting)) / 10
+
+
+def resolve_split_settings(
+    split_settings: Mapping[str, Sequence[int]] | None = None,
+) -> dict[str, tuple[int, ...]]:
+    """The default split table with the given splits replaced.
+
+    :param split_settings: split name -> settings, for some of ``train``, ``interpolation``,
+        ``extrapolation``; the others keep their defaults
+    """
+    resolved = dict(DEFAULT_SPLIT_SETTINGS)
+    for split, settings in (split_settings or {}).items():
+        if split not in DEFAULT_SPLIT_SETTINGS:
+            raise ValueError(f"split_settings: unknown split {split!r}, expected one of {MORPHOLOGY_SPLITS}")
+        if isinstance(settings, (str, bytes)) or not isinstance(settings, Sequence) or len(settings) == 0:
+            raise ValueError(f"split_settings[{split!r}] must be a non-empty sequence of settings in 1..10")
+        checked = tuple(check_setting(setting) for setting in settings)
+        if len(set(checked)) != len(checked):
+            raise ValueError(f"split_settings[{split!r}] repeats a setting: {checked}")
+        resolved[split] = checked
+    return resolved
+
+
+@dataclass(frozen=True)
+class Morphology:
+    """The one length an MT robot varies.
+
+    :param parameter: name of the length, e.g. ``"torso_length"``
+    :param default_length: the unmodified dm_control length in metres
+    """
+
+    parameter: str
+    default_length: float
+
+    def value(self, setting: int) -> float:
+        """Length in metres at one setting.
+
+        :param setting: morphology setting, an int in 1..10
+        """
+        return round(self.default_length * setting_scale(setting), 6)
+
+
+# --- XML editing -----------------------------------------------------------------------------------
+
+
+def read_suite_model(filename: str) -> ET.Element:
+    """Parse a dm_control suite model XML (e.g. ``"walker.xml"``) into an editable tree.
+
+    :param filename: file name inside ``dm_control/suite``
+    """
+    return ET.fromstring(common.read_model(filename))
+
+
+def find_named(root: ET.Element, tag: str, name: str) -> ET.Element:
+    """The unique element ``<tag name="name">`` below ``root``.
+
+    :param root: model tree
+    :param tag: element tag, e.g. ``"body"`` or ``"geom"``
+    :param name: value of its ``name`` attribute
+    """
+    found = root.findall(f".//{tag}[@name='{name}']")
+    if len(found) != 1:
+        raise KeyError(f"expected one <{tag} name={name!r}> in the model, found {len(found)}")
+    return found[0]
+
+
+def get_floats(element: ET.Element, attribute: str) -> np.ndarray:
+    """A numeric XML attribute (e.g. ``pos="0 0 1.3"``) as a float array.
+
+    :param element: XML element
+    :param attribute: attribute name
+    """
+    return np.array(element.attrib[attribute].split(), dtype=np.float64)
+
+
+def set_floats(element: ET.Element, attribute: str, values: Sequence[float] | np.ndarray) -> None:
+    """Write a float vector into a numeric XML attribute.
+
+    :param element: XML element
+    :param attribute: attribute name
+    :param values: the numbers to write
+    """
+    element.set(attribute, " ".join(f"{value:.6g}" for value in values))
+
+
+def to_xml_string(root: ET.Element) -> str:
+    """Serialise an edited model tree for ``Physics.from_xml_string``.
+
+    :param root: model tree
+    """
+    return ET.tostring(root, encoding="unicode")
