@@ -9,11 +9,18 @@
 
 import os
 import sys
+import warnings
 
-# MuJoCo picks its OpenGL backend when dm_control is first imported; EGL renders with no display and
-# no GPU (Mesa llvmpipe). A value the user set wins.
-if sys.platform.startswith("linux"):
-    os.environ.setdefault("MUJOCO_GL", "egl")
+# dm_control picks its OpenGL backend when it is first imported; EGL renders with no display and no
+# GPU (Mesa llvmpipe). A value the user set wins.
+if sys.platform.startswith("linux") and "MUJOCO_GL" not in os.environ:
+    if "dm_control._render" in sys.modules:
+        warnings.warn(
+            "dm_control was imported before sgfd_envs with MUJOCO_GL unset, so it chose its OpenGL backend "
+            "itself (GLFW needs a display). Import sgfd_envs first or set MUJOCO_GL=egl.",
+            stacklevel=2,
+        )
+    os.environ["MUJOCO_GL"] = "egl"
 
 # Imported after the line above: it loads dm_control.
 from sgfd_envs.registry import (

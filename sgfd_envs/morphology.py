@@ -1,8 +1,10 @@
 """Morphology settings of the MT ids and the XML editing helpers the robots share.
 
-Each MT robot has one task-relevant length with ten monotone settings. Setting ``k`` scales the
-default length by ``(7 + k) / 10``: 0.8, 0.9, 1.0 (the unmodified dm_control robot), ..., 1.7.
-The robot files in :mod:`sgfd_envs.domains` apply the scale to the dm_control XML in code.
+Each MT robot has one task-relevant length with ten monotone settings, each a scale of the
+unmodified dm_control length. Setting 3 is always the unmodified robot. The default scales are
+0.8, 0.9, 1.0, ..., 1.7 (the prior MT benchmark's walker foot range); a robot may narrow them where
+a setting would break its task. The robot files in :mod:`sgfd_envs.domains` apply the scale to the
+dm_control XML in code.
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ from dm_control.suite import common
 
 N_SETTINGS = 10
 SETTINGS = tuple(range(1, N_SETTINGS + 1))
+UNMODIFIED_SETTING = 3
+DEFAULT_SCALES = tuple((7 + setting) / 10 for setting in SETTINGS)
 
 # Paper: four training robots drawn from settings 1..5, extrapolation = the tenth setting.
 # Setting 3 (the unmodified robot) lies between the training ones, hence "interpolation".
@@ -35,14 +39,6 @@ def check_setting(setting: int) -> int:
     if isinstance(setting, bool) or not isinstance(setting, (int, np.integer)) or setting not in SETTINGS:
         raise ValueError(f"setting must be an int in 1..{N_SETTINGS}, got {setting!r}")
     return int(setting)
-
-
-def setting_scale(setting: int) -> float:
-    """Scale factor of the default length for one setting: 0.8 for setting 1 up to 1.7 for setting 10.
-
-    :param setting: morphology setting, an int in 1..10
-    """
-    return (7 + check_setting(setting)) / 10
 
 
 def resolve_split_settings(
@@ -68,21 +64,36 @@ def resolve_split_settings(
 
 @dataclass(frozen=True)
 class Morphology:
-    """The one length an MT robot varies.
+    """The one length an MT robot varies, and its ten settings.
 
     :param parameter: name of the length, e.g. ``"torso_length"``
     :param default_length: the unmodified dm_control length in metres
+    :param scales: the ten scales of ``default_length``, increasing, setting 3 = 1.0
     """
 
     parameter: str
     default_length: float
+    scales: tuple[float, ...] = DEFAULT_SCALES
+
+    def __post_init__(self) -> None:
+        if len(self.scales) != N_SETTINGS or not np.all(np.diff(self.scales) > 0):
+            raise ValueError(f"scales must be {N_SETTINGS} increasing numbers, got {self.scales}")
+        if self.scales[UNMODIFIED_SETTING - 1] != 1.0:
+            raise ValueError(f"setting {UNMODIFIED_SETTING} must be the unmodified robot (scale 1.0)")
+
+    def scale(self, setting: int) -> float:
+        """Scale of the default length at one setting.
+
+        :param setting: morphology setting, an int in 1..10
+        """
+        return self.scales[check_setting(setting) - 1]
 
     def value(self, setting: int) -> float:
         """Length in metres at one setting.
 
         :param setting: morphology setting, an int in 1..10
         """
-        return round(self.default_length * setting_scale(setting), 6)
+        return round(self.default_length * self.scale(setting), 6)
 
 
 # --- XML editing -----------------------------------------------------------------------------------

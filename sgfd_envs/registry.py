@@ -22,7 +22,7 @@ from sgfd_envs.backgrounds import (
     n_background_domains,
 )
 from sgfd_envs.dmc import EPISODE_CONTROL_STEPS, DMCEnv, DomainLabel
-from sgfd_envs.morphology import MORPHOLOGY_SPLITS, check_setting, resolve_split_settings, setting_scale
+from sgfd_envs.morphology import MORPHOLOGY_SPLITS, check_setting, resolve_split_settings
 
 BACKGROUND = "background"
 MORPHOLOGY = "morphology"
@@ -175,7 +175,7 @@ def make_morphology_env(env_id: str, split: str | None = None, domain: int | Non
     morphology = domains.morphology(entry.robot)
     label = DomainLabel(split=label_split, domain=label_domain, n_domains=count, setting=setting,
                         morphology_parameter=morphology.parameter, morphology_value=morphology.value(setting))
-    dm_env = domains.load(entry.robot, entry.task, setting_scale(setting))
+    dm_env = domains.load(entry.robot, entry.task, morphology.scale(setting))
     return DMCEnv(dm_env, label, action_repeat=entry.action_repeat, obs_type=obs_type, image_size=image_size,
                   render_mode=render_mode)
 

@@ -1,6 +1,8 @@
 """sgfd_envs: registration, gymnasium/SB3 API conformance, episodes, seeding, labels, VecEnv helper."""
 
 import os
+import subprocess
+import sys
 import warnings
 
 import gymnasium as gym
@@ -20,8 +22,29 @@ BACKGROUND_IDS = [env_id for env_id in sgfd_envs.SGFD_IDS if "/MT-" not in env_i
 MT_IDS = [env_id for env_id in sgfd_envs.SGFD_IDS if "/MT-" in env_id]
 
 
-def test_import_sets_egl_and_registers_the_ten_ids():
-    assert os.environ["MUJOCO_GL"]  # set by the package (egl) or by the user before import
+@pytest.mark.parametrize(("preset", "expected"), [(None, "egl"), ("glfw", "glfw")])
+def test_import_defaults_mujoco_gl_to_egl_and_respects_the_users_choice(preset, expected):
+    environment = {key: value for key, value in os.environ.items() if key != "MUJOCO_GL"}
+    if preset is not None:
+        environment["MUJOCO_GL"] = preset
+    # Importing is enough: dm_control loads the backend then (GLFW imports fine, it fails only at rendering).
+    code = ("import sys, os, sgfd_envs; assert 'dm_control._render' in sys.modules; "
+            "from dm_control import _render; print(os.environ['MUJOCO_GL'], _render.BACKEND)")
+    result = subprocess.run([sys.executable, "-c", code], env=environment, capture_output=True, text=True,
+                            check=False)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == [expected, expected]
+
+
+def test_importing_dm_control_first_warns():
+    environment = {key: value for key, value in os.environ.items() if key != "MUJOCO_GL"}
+    code = "import dm_control.suite, sgfd_envs"
+    result = subprocess.run([sys.executable, "-W", "always", "-c", code], env=environment, capture_output=True,
+                            text=True, check=False)
+    assert "Import sgfd_envs first or set MUJOCO_GL=egl" in result.stderr
+
+
+def test_import_registers_the_ten_ids():
     assert len(sgfd_envs.SGFD_IDS) == 10
     assert len(BACKGROUND_IDS) == len(MT_IDS) == 5
     for env_id in sgfd_envs.SGFD_IDS:
