@@ -1,0 +1,138 @@
+"""Domain classifier and the feature probabilities p(Z_i) from its saliency (SGFD paper, section 4.2)."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+
+
+def _check_features(z: Tensor, name: str = "z") -> None:
+    if not isinstance(z, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(z).__name__}")
+    if z.dim() != 2 or z.shape[0] < 1 or z.shape[1] < 1:
+        raise ValueError(f"{name} must have shape (n, d) with n >= 1 and d >= 1, got {tuple(z.shape)}")
+    if not z.is_floating_point():
+        raise TypeError(f"{name} must be a floating-point tensor, got {z.dtype}")
+    if not torch.isfinite(z).all():
+        raise ValueError(f"{name} contains NaN or inf values")
+
+
+def _check_domains(domains: Tensor, n: int) -> None:
+    if not isinstance(domains, Tensor) or domains.shape != (n,):
+        shape = tuple(domains.shape) if isinstance(domains, Tensor) else type(domains).__name__
+        raise ValueError(f"domains must be a tensor of shape ({n},), got {shape}")
+    if domains.is_floating_point() or domains.is_complex() or domains.dtype == torch.bool:
+        raise TypeError(f"domains must be an integer tensor of domain labels, got {domains.dtype}")
+
+
+class DomainClassifier(nn.Module):
+    """MLP that predicts the training domain of a feature vector (paper Table 3: 2 hidden layers of 128, ReLU).
+
+    :param n_features: dimension d of the features (50 for the paper's encoder)
+    :param n_domains: number K of training domains
+    :param hidden_dim: width of the two hidden layers
+    """
+
+    def __init__(self, n_features: int, n_domains: int, hidden_dim: int = 128) -> None:
+        super().__init__()
+        sizes = (("n_features", n_features, 1), ("n_domains", n_domains, 2), ("hidden_dim", hidden_dim, 1))
+        for name, value, low in sizes:
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
+        self.n_features = n_features
+        self.n_domains = n_domains
+        self.net = nn.Sequential(
+            nn.Linear(n_features, hidden_dim),
+            nn.ReLU(),
+            nn.Linear(hidden_dim, hidden_dim),
+            nn.ReLU(),
+            nn.Linear(hidden_dim, n_domains),
+        )
+
+    def forward(self, z: Tensor) -> Tensor:
+        """:param z: features (n, n_features)
+        :return: domain logits (n, n_domains)"""
+        if z.dim() != 2 or z.shape[1] != self.n_features:
+            raise ValueError(f"z must have shape (n, {self.n_features}), got {tuple(z.shape)}")
+        return self.net(z)
+
+
+def saliency_map(classifier: nn.Module, z: Tensor, domains: Tensor | None = None) -> Tensor:
+    """Mean absolute saliency M_i = |d f(z) / d z_i| over the batch (Simonyan et al.'s saliency map).
+
+    f is the logit of the domain the classifier predicts for each sample, or of the true domain when
+    ``domains`` is given. Logits, not probabilities: the softmax saturates once the classifier is
+    confident (which SGFD waits for) and would leave no gradient.
+
+    :param classifier: maps (n, d) features to (n, K) logits
+    :param z: features (n, d)
+    :param domains: optional true domain labels (n,)
+    :return: (d,) non-negative saliency, without grad
+    """
+    _check_features(z)
+    if domains is not None:
+        _check_domains(domains, z.shape[0])
+    # A copy that requires grad; autograd.grad w.r.t. it alone leaves the classifier's .grad untouched.
+    z = z.detach().clone().requires_grad_(True)
+    with torch.enable_grad():  # SAC may call this inside torch.no_grad()
+        logits = classifier(z)
+        if domains is not None and not 0 <= int(domains.min()) <= int(domains.max()) < logits.shape[1]:
+            raise ValueError(f"domains must be labels in [0, {logits.shape[1]}), got {domains.unique().tolist()}")
+        target = logits.argmax(dim=1) if domains is None else domains.to(logits.device)
+        # Samples do not interact in an MLP (no batch norm), so d(sum_k f_k)/d z_k = d f_k / d z_k.
+        score = logits.gather(1, target.long().unsqueeze(1)).sum()
+        (grad,) = torch.autograd.grad(score, z)
+    return grad.abs().mean(dim=0)
+
+
+def feature_probabilities(
+    classifier: nn.Module,
+    z: Tensor,
+    *,
+    temperature: float = 0.1,
+    normalize: bool = True,
+    domains: Tensor | None = None,
+) -> Tensor:
+    """p(Z_i) = softmax_i(M_i / temperature): how likely feature i is to change across domains (section 4.2).
+
+    M is ``saliency_map`` (mean |d logit / d z_i| over the batch), divided by its largest entry when
+    ``normalize`` is on. The paper's p = softmax(M) on the raw saliency (``temperature=1, normalize=False``)
+    depends on how large the classifier's logits happen to be: in ``bench/decorrelation.py`` (d = 50, only
+    one domain feature) it gives that feature p = 1.000 for a trained classifier (max saliency 13), 0.555
+    for one stopped at accuracy 0.9 (max saliency 4.4), and 0.068, next to uniform 0.020, for the trained
+    one with logits scaled by 0.1, where the guidance is lost. Normalised, with temperature 0.1, the
+    feature gets p >= 0.995 in all three cases: a feature at half the top saliency weighs e^-5 as much.
+
+    :param classifier: domain classifier, (n, d) -> (n, K) logits
+    :param z: features (n, d)
+    :param temperature: softmax temperature (> 0); smaller puts more weight on the most salient features
+    :param normalize: divide the saliency by its maximum over features first (scale-free p)
+    :param domains: optional true labels; the saliency is then taken on the true domain's logit
+    :return: (d,) probabilities summing to 1, without grad
+    """
+    if isinstance(temperature, bool) or not isinstance(temperature, (int, float)) or not temperature > 0:
+        raise ValueError(f"temperature must be a number > 0, got {temperature!r}")
+    if not math.isfinite(temperature):
+        raise ValueError(f"temperature must be finite, got {temperature!r}")
+    m = saliency_map(classifier, z, domains)
+    if not torch.isfinite(m).all():
+        raise ValueError("the classifier's saliency is not finite; check the classifier for NaN weights")
+    if normalize:
+        m = m / m.max().clamp_min(torch.finfo(m.dtype).tiny)
+    return torch.softmax(m / temperature, dim=0).detach()
+
+
+def classifier_accuracy(classifier: nn.Module, z: Tensor, domains: Tensor) -> float:
+    """Fraction of samples whose predicted domain is the true one (SGFD trains the classifier until > 0.9).
+
+    :param classifier: domain classifier, (n, d) -> (n, K) logits
+    :param z: features (n, d)
+    :param domains: true domain labels (n,)
+    """
+    _check_features(z)
+    _check_domains(domains, z.shape[0])
+    with torch.no_grad():
+        predicted = classifier(z).argmax(dim=1)
+    return (predicted == domains.to(predicted.device)).float().mean().item()
