@@ -99,6 +99,11 @@ class DomainReplayBuffer(ReplayBuffer):
             self.obs_shape = get_obs_shape(observation_space)  # type: ignore[assignment]
             self._init_frame_storage(observation_space)  # type: ignore[arg-type]
 
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        # Buffers pickled before frame_stack existed stored observations as they are.
+        state.setdefault("frame_stack", None)
+        self.__dict__.update(state)
+
     def _init_frame_storage(self, observation_space: spaces.Box) -> None:
         """
         Allocate the per-frame storage used with ``frame_stack``.
@@ -282,6 +287,8 @@ class DomainReplayBuffer(ReplayBuffer):
                 pairs = list(zip(np.asarray(batch_inds)[bad].tolist(), env_indices[bad].tolist(), strict=True))
                 raise ValueError(f"(batch_inds, env_indices) pairs {pairs} hold no sampleable transition")
 
+        # Stacks rebuilt from frames are new arrays that nothing else references: no copy needed.
+        copy_obs = self.frame_stack is None
         if self.frame_stack is not None:
             obs, next_obs = self._rebuild_stacks(batch_inds, env_indices)
         else:
@@ -297,8 +304,10 @@ class DomainReplayBuffer(ReplayBuffer):
             (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1),
             self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env),
         )
+        copies = (copy_obs, True, copy_obs, True, True)
         return DomainReplayBufferSamples(
-            *map(self.to_torch, data), domains=self.to_torch(self.domains[batch_inds, env_indices])
+            *(self.to_torch(array, copy=copy) for array, copy in zip(data, copies, strict=True)),
+            domains=self.to_torch(self.domains[batch_inds, env_indices]),
         )
 
     def _redraw_unsampleable(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -335,28 +344,32 @@ class DomainReplayBuffer(ReplayBuffer):
 
         :param batch_inds: Slots
         :param env_indices: Env indices
-        :return: obs and next_obs, each of shape (batch, *obs_shape)
+        :return: obs and next_obs, each a new C-contiguous array of shape (batch, *obs_shape)
         """
         assert self.frame_stack is not None
         n_frames, channels = self.frame_stack, self._channels
-        # Column j of the sequence is the frame `offsets[j]` slots back: the k frames of obs (oldest
-        # first), then the next frame (read from slot + 1 unless overridden below).
+        # Frames `offsets` slots back, oldest first: obs takes the first k, next_obs the last k (whose newest,
+        # read from slot + 1, is replaced below where the next frame is stored elsewhere).
         offsets = np.arange(n_frames - 1, -2, -1)
         slots = (batch_inds[:, None] - offsets) % self.buffer_size
-        sequence = self.frames[slots, env_indices[:, None]]
+        env_column = env_indices[:, None]
+        # Two gathers rather than one sequence sliced twice: contiguous results convert to tensors without a copy.
+        obs = self.frames[slots[:, :-1], env_column]
+        next_obs = self.frames[slots[:, 1:], env_column]
 
-        padding = offsets[:n_frames] > self.history[batch_inds, env_indices][:, None].astype(np.intp)
+        padding = offsets > self.history[batch_inds, env_indices][:, None].astype(np.intp)
         if padding.any():
-            sequence[:, :n_frames][padding] = 0
+            obs[padding[:, :-1]] = 0
+            next_obs[padding[:, 1:]] = 0
 
         newest = np.flatnonzero(batch_inds == self._last_slot)
         if len(newest) > 0:
-            sequence[newest, n_frames] = self._last_next_obs[env_indices[newest], -channels:]
+            next_obs[newest, -1] = self._last_next_obs[env_indices[newest], -channels:]
         for row in np.flatnonzero(self.has_side_frame[batch_inds, env_indices]):
-            sequence[row, n_frames] = self.side_frames[(int(batch_inds[row]), int(env_indices[row]))]
+            next_obs[row, -1] = self.side_frames[(int(batch_inds[row]), int(env_indices[row]))]
 
         stacked_shape = (len(batch_inds), *self.obs_shape)
-        return sequence[:, :n_frames].reshape(stacked_shape), sequence[:, 1:].reshape(stacked_shape)
+        return obs.reshape(stacked_shape), next_obs.reshape(stacked_shape)
 
     def storage_nbytes(self) -> int:
         """Bytes held by the buffer's storage: its arrays, plus, with ``frame_stack``, the side frames."""

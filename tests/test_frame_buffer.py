@@ -302,6 +302,18 @@ def test_pickled_frame_buffer_samples_and_continues_identically():
     assert_same_samples(plain._get_samples(slots, env_indices=envs), loaded._get_samples(slots, env_indices=envs))
 
 
+def test_buffer_pickled_before_frame_stack_existed_still_loads():
+    plain, _ = make_pair(slots=4, n_envs=1, n_stack=2, channels=1)
+    obs = np.zeros((1, 2, HEIGHT, WIDTH), dtype=np.uint8)
+    plain.add(obs, obs, np.zeros((1, 2)), np.ones(1), np.zeros(1), [{}])
+    del plain.__dict__["frame_stack"]
+    loaded = pickle.loads(pickle.dumps(plain))
+    assert loaded.frame_stack is None
+    loaded.add(obs + 1, obs + 2, np.zeros((1, 2)), np.ones(1), np.zeros(1), [{}])
+    batch = loaded._get_samples(np.array([1]), env_indices=np.zeros(1, dtype=int))
+    assert th.equal(batch.next_observations, th.as_tensor(obs + 2))
+
+
 def test_resuming_with_a_fresh_env_mid_episode_stays_exact():
     plain, framed = make_pair(slots=16, n_envs=2, n_stack=3, channels=1)
     plans = [[(50, False)], [(50, True)]]
@@ -332,6 +344,17 @@ def test_reset_mid_episode_keeps_continuity_and_drops_lost_frames():
     # After the reset, slots 0-4 hold steps 5-9, whose stacks reach 3 frames back: slots 0-2 miss some.
     assert framed.is_sampleable(np.arange(5), np.zeros(5, dtype=int)).tolist() == [False] * 3 + [True] * 2
     slots, envs = np.array([3, 4]), np.zeros(2, dtype=int)
+    assert_same_samples(plain._get_samples(slots, env_indices=envs), framed._get_samples(slots, env_indices=envs))
+
+
+@pytest.mark.parametrize("n_stack", [1, 3])
+def test_samples_do_not_share_memory_with_the_buffer(n_stack: int):
+    plain, framed = make_pair(slots=6, n_envs=1, n_stack=n_stack, channels=1)
+    plain, framed, _ = drive(plain, framed, lambda offset: stacked_venv(1, n_stack, 1, [[(3, True)]], 9), 6)
+    slots, envs = np.arange(6), np.zeros(6, dtype=int)
+    first = framed._get_samples(slots, env_indices=envs)
+    first.observations.add_(1)
+    first.next_observations.add_(1)
     assert_same_samples(plain._get_samples(slots, env_indices=envs), framed._get_samples(slots, env_indices=envs))
 
 
