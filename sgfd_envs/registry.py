@@ -7,11 +7,10 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 from sgfd_envs import domains
 from sgfd_envs.backgrounds import (
@@ -23,6 +22,9 @@ from sgfd_envs.backgrounds import (
 )
 from sgfd_envs.dmc import EPISODE_CONTROL_STEPS, DMCEnv, DomainLabel
 from sgfd_envs.morphology import MORPHOLOGY_SPLITS, check_setting, resolve_split_settings
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.vec_env import VecEnv
 
 BACKGROUND = "background"
 MORPHOLOGY = "morphology"
@@ -193,6 +195,8 @@ def register_envs() -> None:
 
 
 def _make_monitored_env(env_id: str, split: str, domain: int, action_seed: int, env_kwargs: dict) -> gym.Env:
+    from stable_baselines3.common.monitor import Monitor
+
     env = gym.make(env_id, split=split, domain=domain, **env_kwargs)
     env.action_space.seed(action_seed)
     return Monitor(env)
@@ -211,6 +215,9 @@ def make_domain_vec_env(env_id: str, split: str = "train", n_envs: int | None = 
     :param vec_env_cls: SB3 VecEnv class, default DummyVecEnv
     :param env_kwargs: more kwargs for ``gym.make`` (``obs_type``, ``image_size``, ``background_dir``...)
     """
+    # Imported here, not at the top: torch makes `import sgfd_envs` ~3 s slower for gymnasium-only use.
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
     task_entry(env_id)
     if "domain" in env_kwargs:
         raise ValueError("make_domain_vec_env sets domain= itself (sub-env i gets domain i % n_domains)")
