@@ -322,7 +322,7 @@ def make_background(split: str, domain: int, height: int, width: int, background
     """The background source of one domain; frames are produced or decoded on first use.
 
     :param split: ``"train"`` or ``"test"``
-    :param domain: index of the source within the split
+    :param domain: index of the source within the split, in ``range(n_background_domains(split, ...))``
     :param height: frame height
     :param width: frame width
     :param background_dir: a user's folder of videos/images, or None for the built-in procedural banks

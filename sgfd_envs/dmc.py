@@ -26,6 +26,16 @@ OBS_TYPES = ("pixels", "state")
 _CLEARED_DEPTH = 1.0
 
 
+def check_image_size(image_size: int) -> int:
+    """Return ``image_size`` if it is a positive int, else raise.
+
+    :param image_size: height and width of images in pixels
+    """
+    if isinstance(image_size, bool) or not isinstance(image_size, (int, np.integer)) or image_size < 1:
+        raise ValueError(f"image_size must be a positive int, got {image_size!r}")
+    return int(image_size)
+
+
 @dataclass(frozen=True)
 class DomainLabel:
     """Which domain of which split an env is, and for MT ids its morphology.
@@ -152,8 +162,7 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
                  camera_id: int = 0, render_mode: str | None = None) -> None:
         if obs_type not in OBS_TYPES:
             raise ValueError(f"obs_type must be one of {OBS_TYPES}, got {obs_type!r}")
-        if isinstance(image_size, bool) or not isinstance(image_size, (int, np.integer)) or image_size < 1:
-            raise ValueError(f"image_size must be a positive int, got {image_size!r}")
+        check_image_size(image_size)
         if isinstance(action_repeat, bool) or not isinstance(action_repeat, int) or action_repeat < 1:
             raise ValueError(f"action_repeat must be a positive int, got {action_repeat!r}")
         if render_mode not in (None, *self.metadata["render_modes"]):

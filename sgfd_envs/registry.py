@@ -20,7 +20,7 @@ from sgfd_envs.backgrounds import (
     make_background,
     n_background_domains,
 )
-from sgfd_envs.dmc import EPISODE_CONTROL_STEPS, DMCEnv, DomainLabel
+from sgfd_envs.dmc import EPISODE_CONTROL_STEPS, DMCEnv, DomainLabel, check_image_size
 from sgfd_envs.morphology import MORPHOLOGY_SPLITS, check_setting, resolve_split_settings
 
 if TYPE_CHECKING:
@@ -76,6 +76,14 @@ def task_entry(env_id: str) -> TaskEntry:
     if env_id not in TASKS:
         raise ValueError(f"env_id must be one of {SGFD_IDS}, got {env_id!r}")
     return TASKS[env_id]
+
+
+def _entry_of_kind(env_id: str, variation: str) -> TaskEntry:
+    entry = task_entry(env_id)
+    if entry.variation != variation:
+        same_kind = tuple(i for i, e in TASKS.items() if e.variation == variation)
+        raise ValueError(f"env_id must be a {variation} id, one of {same_kind}, got {env_id!r}")
+    return entry
 
 
 def splits(env_id: str) -> tuple[str, ...]:
@@ -136,7 +144,8 @@ def make_background_env(env_id: str, split: str = "train", domain: int = 0, *,
     :param image_size: height and width of the pixel observation
     :param render_mode: None or ``"rgb_array"``
     """
-    entry = task_entry(env_id)
+    entry = _entry_of_kind(env_id, BACKGROUND)
+    check_image_size(image_size)
     check_background_split(split)
     count = n_background_domains(split, background_dir)
     domain = _check_domain(domain, count, split)
@@ -161,7 +170,7 @@ def make_morphology_env(env_id: str, split: str | None = None, domain: int | Non
     :param image_size: height and width of the pixel observation
     :param render_mode: None or ``"rgb_array"``
     """
-    entry = task_entry(env_id)
+    entry = _entry_of_kind(env_id, MORPHOLOGY)
     if setting is not None:
         if split is not None or domain is not None:
             raise ValueError(f"give either setting= or split=/domain=, not both (got setting={setting!r}, "

@@ -17,6 +17,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 import sgfd_envs
 from sgfd_envs import domains
+from sgfd_envs.registry import make_background_env, make_morphology_env
 
 BACKGROUND_IDS = [env_id for env_id in sgfd_envs.SGFD_IDS if "/MT-" not in env_id]
 MT_IDS = [env_id for env_id in sgfd_envs.SGFD_IDS if "/MT-" in env_id]
@@ -252,6 +253,7 @@ def test_make_domain_vec_env_rejects_bad_arguments():
     ({"split": "test", "domain": 1.0}, r"domain must be an int in 0..3 for split 'test'"),
     ({"obs_type": "rgb"}, r"obs_type must be one of \('pixels', 'state'\)"),
     ({"image_size": 0}, r"image_size must be a positive int"),
+    ({"image_size": 32.5}, r"image_size must be a positive int, got 32.5"),
     ({"frame_budget": 0}, r"frame_budget must be a positive int"),
 ])
 def test_background_ids_reject_bad_arguments(kwargs, message):
@@ -274,6 +276,13 @@ def test_background_ids_reject_bad_arguments(kwargs, message):
 def test_mt_ids_reject_bad_arguments(kwargs, message):
     with pytest.raises(ValueError, match=message):
         gym.make("SGFD/MT-walker-walk-v0", **kwargs)
+
+
+def test_entry_points_refuse_ids_of_the_other_kind():
+    with pytest.raises(ValueError, match=r"env_id must be a background id, one of \('SGFD/walker-walk-v0'"):
+        make_background_env("SGFD/MT-walker-walk-v0")
+    with pytest.raises(ValueError, match=r"env_id must be a morphology id, one of \('SGFD/MT-walker-walk-v0'"):
+        make_morphology_env("SGFD/walker-walk-v0")
 
 
 def test_variation_specific_kwargs_are_refused_by_the_other_kind():
