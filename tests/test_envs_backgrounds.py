@@ -1,5 +1,10 @@
 """sgfd_envs background ids: exact compositing, background sources, user folders and their errors."""
 
+# First: importing sgfd_envs picks MuJoCo's headless OpenGL backend, which must precede dm_control.
+import sgfd_envs
+
+# isort: split
+
 from pathlib import Path
 
 import cv2
@@ -10,7 +15,6 @@ import pytest
 from dm_control import suite
 from dm_control.mujoco import wrapper
 
-import sgfd_envs
 from sgfd_envs.backgrounds import (
     PROCEDURAL_SEEDS,
     ImageBackground,

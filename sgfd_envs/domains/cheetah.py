@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
+
+import mujoco
 from dm_control.rl import control
 from dm_control.suite import cheetah as dm_cheetah
 from dm_control.suite import common
@@ -16,14 +19,7 @@ _TORSO_HALF_LENGTH = 0.5
 MORPHOLOGY = Morphology(parameter="torso_length", default_length=2 * _TORSO_HALF_LENGTH)
 
 
-def model_xml(scale: float = 1.0) -> str:
-    """The cheetah XML with its torso ``scale`` times dm_control's length.
-
-    Thighs and head move with the torso's ends. dm_control rescales the whole body to 14 kg
-    (``settotalmass``), so a longer torso takes mass and inertia from the legs.
-
-    :param scale: torso length relative to dm_control's cheetah
-    """
+def _scaled_model(scale: float) -> ET.Element:
     root = read_suite_model("cheetah.xml")
     half_length = _TORSO_HALF_LENGTH * scale
     set_floats(find_named(root, "geom", "torso"), "fromto", [-half_length, 0, 0, half_length, 0, 0])
@@ -34,7 +30,18 @@ def model_xml(scale: float = 1.0) -> str:
         thigh = find_named(root, "body", thigh_name)
         _, y, z = get_floats(thigh, "pos")
         set_floats(thigh, "pos", [side * half_length, y, z])
-    return to_xml_string(root)
+    return root
+
+
+def model_xml(scale: float = 1.0) -> str:
+    """The cheetah XML with its torso ``scale`` times dm_control's length.
+
+    Thighs and head move with the torso's ends. dm_control rescales the whole body to 14 kg
+    (``settotalmass``), so a longer torso takes mass and inertia from the legs.
+
+    :param scale: torso length relative to dm_control's cheetah
+    """
+    return to_xml_string(_scaled_model(scale))
 
 
 def load(task: str, scale: float = 1.0) -> control.Environment:
@@ -45,7 +52,13 @@ def load(task: str, scale: float = 1.0) -> control.Environment:
     """
     if task not in TASKS:
         raise ValueError(f"cheetah task must be one of {TASKS}, got {task!r}")
-    physics = dm_cheetah.Physics.from_xml_string(model_xml(scale), common.ASSETS)
+    root = _scaled_model(scale)
+    # MuJoCo deprecates <compiler settotalmass> and logs a warning at every compile; rescaling the
+    # compiled model instead gives the same model arrays (tested against dm_control's cheetah).
+    total_mass = float(root.find("compiler").attrib.pop("settotalmass"))
+    physics = dm_cheetah.Physics.from_xml_string(to_xml_string(root), common.ASSETS)
+    mujoco.mj_setTotalmass(physics.model.ptr, total_mass)
+    mujoco.mj_setConst(physics.model.ptr, physics.data.ptr)
     return control.Environment(
         physics, dm_cheetah.Cheetah(), time_limit=float("inf"), control_timestep=CONTROL_TIMESTEP
     )
