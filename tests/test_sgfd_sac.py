@@ -1,0 +1,157 @@
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+import sgfd_envs
+from sb3_sgfd import SGFD_SAC, DomainReplayBuffer, MlpPolicy
+
+ENV_ID = "SGFD/MT-walker-walk-v0"
+TINY = dict(
+    learning_starts=100, batch_size=32, learning_rate=1e-3, tau=0.01, policy_kwargs=dict(net_arch=[32, 32]), seed=0
+)
+
+
+def state_env(n_envs: int | None = None):
+    return sgfd_envs.make_domain_vec_env(ENV_ID, split="train", n_envs=n_envs, obs_type="state")
+
+
+def reweighting_model(**kwargs) -> SGFD_SAC:
+    settings = dict(TINY, classifier_start=200, classifier_hidden_dim=32)
+    settings.update(kwargs)
+    return SGFD_SAC("MlpPolicy", state_env(), **settings)
+
+
+def test_with_unit_weights_it_is_sb3_sac_exactly():
+    # Before the classifier starts w = 1; with the actor updated every step SGFD_SAC must then take
+    # exactly SAC's steps: same batches, same losses, same parameters to the last bit.
+    # Each constructor re-seeds the global RNGs, so each model learns right after it is built.
+    sac = SAC(MlpPolicy, state_env(), replay_buffer_class=DomainReplayBuffer, **TINY).learn(300)
+    sgfd = SGFD_SAC("MlpPolicy", state_env(), actor_update_interval=1, classifier_start=10**9, **TINY).learn(300)
+    assert sgfd._n_updates == sac._n_updates > 0
+    for (name, expected), (_, got) in zip(
+        sac.policy.state_dict().items(), sgfd.policy.state_dict().items(), strict=True
+    ):
+        assert th.equal(expected, got), name
+    assert th.equal(sac.log_ent_coef, sgfd.log_ent_coef)
+
+
+class ZeroWeights(SGFD_SAC):
+    """Every sample weighted 0: a weighted loss then has zero gradient."""
+
+    def _batch_weights(self, replay_data, batch_size, update_index):
+        return th.zeros((replay_data.rewards.shape[0], 1))
+
+
+@pytest.mark.parametrize(("reweight_critic", "reweight_actor"), [(True, True), (False, True), (True, False)])
+def test_weights_multiply_the_critic_and_actor_losses(reweight_critic, reweight_actor):
+    model = ZeroWeights(
+        "MlpPolicy", state_env(), reweight_critic=reweight_critic, reweight_actor=reweight_actor, **TINY
+    )
+    critic = [p.clone() for p in model.critic.parameters()]
+    actor = [p.clone() for p in model.actor.latent_pi.parameters()]
+    ent_coef = model.log_ent_coef.clone()
+    model.learn(200)
+    critic_moved = any(not th.equal(a, b) for a, b in zip(critic, model.critic.parameters(), strict=True))
+    actor_moved = any(not th.equal(a, b) for a, b in zip(actor, model.actor.latent_pi.parameters(), strict=True))
+    assert model._n_updates > 0
+    assert critic_moved is not reweight_critic
+    assert actor_moved is not reweight_actor
+    # The entropy-coefficient loss is SAC's, unweighted.
+    assert not th.equal(ent_coef, model.log_ent_coef)
+
+
+def test_learns_on_the_training_domains_and_its_weights_leave_one():
+    model = reweighting_model()
+    model.learn(600)
+    stats = model._sgfd_stats
+    assert model.classifier_ready
+    assert model.n_domains == 4
+    assert stats["weight_min"][-1] < 1.0 < stats["weight_max"][-1]
+    assert 0.3 < stats["weight_ess"][-1] < 1.0
+    assert stats["decorrelation_loss_after"][-1] < stats["decorrelation_loss_before"][-1]
+    assert 0 <= stats["top_saliency_feature"][-1] < model.critic.features_extractor.features_dim
+    logged = model.logger.name_to_value
+    assert {"sgfd/classifier_accuracy", "sgfd/weight_ess", "sgfd/decorrelation_loss_after"} <= set(logged)
+
+
+def test_actor_is_updated_every_actor_update_interval_steps():
+    model = reweighting_model(actor_update_interval=3, classifier_start=10**9)
+    model.learn(400)
+    actor_steps = model.actor.optimizer.state[model.actor.optimizer.param_groups[0]["params"][0]]["step"]
+    critic_steps = model.critic.optimizer.state[model.critic.optimizer.param_groups[0]["params"][0]]["step"]
+    assert int(critic_steps) == model._n_updates
+    assert int(actor_steps) == -(-model._n_updates // 3)
+
+
+def test_save_load_keeps_classifier_and_solver_and_continues(tmp_path):
+    model = reweighting_model()
+    model.learn(400)
+    model.save(tmp_path / "sgfd")
+    model.save_replay_buffer(tmp_path / "buffer")
+    loaded = SGFD_SAC.load(tmp_path / "sgfd", env=state_env())
+    loaded.load_replay_buffer(tmp_path / "buffer")
+    obs = model.env.reset()
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+    for (name, expected), (_, got) in zip(
+        model.classifier.state_dict().items(), loaded.classifier.state_dict().items(), strict=True
+    ):
+        assert th.equal(expected, got), name
+    assert loaded.classifier_optimizer.state_dict()["state"], "classifier optimizer state was not restored"
+    assert (loaded.classifier_ready, loaded.rff_seed, loaded.n_domains) == (True, model.rff_seed, 4)
+    loaded.learn(300, reset_num_timesteps=False)
+    assert loaded.num_timesteps == model.num_timesteps + 300
+    assert "weight_ess" in loaded._sgfd_stats
+
+
+def test_a_single_domain_warns_once_and_trains_as_sac():
+    env = sgfd_envs.make_domain_vec_env(ENV_ID, split="interpolation", obs_type="state")
+    with pytest.warns(UserWarning, match="single domain") as record:
+        model = SGFD_SAC("MlpPolicy", env, classifier_start=150, **TINY)
+        model.learn(300)
+    assert len([w for w in record if "single domain" in str(w.message)]) == 1
+    assert model.single_domain and not model.classifier_ready
+    assert "weight_ess" not in model._sgfd_stats
+
+
+class NaNRewardAfter(gym.Wrapper):
+    def __init__(self, env, after: int):
+        super().__init__(env)
+        self.after, self.count = after, 0
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.count += 1
+        return obs, (float("nan") if self.count > self.after else reward), terminated, truncated, info
+
+
+def test_non_finite_losses_stop_training_with_a_clear_message():
+    env = DummyVecEnv([lambda: NaNRewardAfter(gym.make(ENV_ID, obs_type="state"), after=150)])
+    model = SGFD_SAC("MlpPolicy", env, n_domains=1, **TINY)
+    with pytest.raises(RuntimeError, match="non-finite critic loss"):
+        model.learn(400)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        (dict(accuracy_threshold=1.5), "accuracy_threshold"),
+        (dict(actor_update_interval=0), "actor_update_interval"),
+        (dict(n_rff=0), "n_rff"),
+        (dict(classifier_iters=-1), "classifier_iters"),
+        (dict(replay_buffer_class=ReplayBuffer), "replay_buffer_class"),
+        (dict(n_domains=0), "n_domains"),
+    ],
+)
+def test_bad_arguments_are_refused_by_name(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        SGFD_SAC("MlpPolicy", state_env(), **kwargs, **TINY)
+
+
+def test_a_label_beyond_n_domains_is_refused():
+    model = reweighting_model(n_domains=2)
+    with pytest.raises(ValueError, match="n_domains"):
+        model.learn(400)
