@@ -141,7 +141,7 @@ class ProceduralBackground:
         size = 4 * max(self.height, self.width)
         backdrop = _colour_texture(rng, size, spectral_slope=2.8)
         blobs = _colour_texture(rng, size, spectral_slope=2.3)
-        # Soft-edged blob mask: a smooth field pushed through a steep ramp around its median.
+        # Soft-edged blob mask: a smooth field pushed through a steep ramp around its mid-level.
         mask_field = _noise_field(rng, size, spectral_slope=3.0)
         blob_alpha = (np.clip((mask_field - 0.5) * 6 + 0.5, 0, 1) * 255).astype(np.uint16)
         if self.grayscale:
