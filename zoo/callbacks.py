@@ -1,0 +1,156 @@
+"""Callbacks the zoo adds to rl-zoo3's: evaluation on every split, and checkpoints a crash cannot spoil."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.vec_env import VecEnv
+
+CHECKPOINT_INDEX = "checkpoint.json"
+
+
+class MultiSplitEvalCallback(BaseCallback):
+    """
+    Every ``eval_freq`` calls, evaluate the policy on the domains of several splits (training domains
+    and the unseen ones), log ``eval/<split>/mean_reward`` and append to ``evaluations_<split>.npz``
+    (same arrays as SB3's EvalCallback: timesteps, results, ep_lengths).
+
+    :param eval_envs: Split name -> VecEnv with one sub-env per domain of that split
+    :param eval_freq: Evaluate every this many calls (env steps divided by the number of train envs)
+    :param n_eval_episodes: Episodes per split, spread over its domains
+    :param log_path: Folder of the ``evaluations_<split>.npz`` files; existing files are continued
+    :param deterministic: Use the deterministic policy
+    """
+
+    def __init__(
+        self,
+        eval_envs: dict[str, VecEnv],
+        eval_freq: int,
+        n_eval_episodes: int = 10,
+        log_path: str | Path | None = None,
+        deterministic: bool = True,
+        verbose: int = 1,
+    ):
+        super().__init__(verbose)
+        if eval_freq < 1:
+            raise ValueError(f"eval_freq must be >= 1, got {eval_freq}")
+        self.eval_envs = eval_envs
+        self.eval_freq = eval_freq
+        self.n_eval_episodes = n_eval_episodes
+        self.log_path = Path(log_path) if log_path is not None else None
+        self.deterministic = deterministic
+        self.history: dict[str, dict[str, list]] = {split: _load_history(self._file(split)) for split in eval_envs}
+
+    def _file(self, split: str) -> Path | None:
+        return None if self.log_path is None else self.log_path / f"evaluations_{split}.npz"
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.eval_freq == 0:
+            self.evaluate()
+        return True
+
+    def evaluate(self) -> dict[str, float]:
+        """Evaluate every split now; returns split -> mean episode reward."""
+        means = {}
+        for split, env in self.eval_envs.items():
+            rewards, lengths = evaluate_policy(
+                self.model,
+                env,
+                n_eval_episodes=self.n_eval_episodes,
+                deterministic=self.deterministic,
+                return_episode_rewards=True,
+            )
+            history = self.history[split]
+            history["timesteps"].append(self.num_timesteps)
+            history["results"].append(rewards)
+            history["ep_lengths"].append(lengths)
+            if self.log_path is not None:
+                self.log_path.mkdir(parents=True, exist_ok=True)
+                np.savez(self._file(split), **{key: np.array(value) for key, value in history.items()})
+            means[split] = float(np.mean(rewards))
+            self.logger.record(f"eval/{split}/mean_reward", means[split])
+            self.logger.record(f"eval/{split}/std_reward", float(np.std(rewards)))
+            if self.verbose > 0:
+                print(f"Eval at {self.num_timesteps} steps, {split}: {means[split]:.1f} +/- {np.std(rewards):.1f}")
+        self.logger.dump(self.num_timesteps)
+        return means
+
+    def _on_training_end(self) -> None:
+        for env in self.eval_envs.values():
+            env.close()
+
+
+def _load_history(path: Path | None) -> dict[str, list]:
+    history: dict[str, list] = {"timesteps": [], "results": [], "ep_lengths": []}
+    if path is not None and path.exists():
+        with np.load(path) as data:
+            for key in history:
+                history[key] = list(data[key])
+    return history
+
+
+class ResumableCheckpointCallback(BaseCallback):
+    """
+    Every ``save_freq`` calls, save the model, its replay buffer and VecNormalize statistics, then
+    record them in ``checkpoint.json``. Files are written under temporary names and renamed, and the
+    index is replaced last, so a crash at any moment leaves the previous checkpoint usable. Only the
+    newest checkpoint is kept (a paper-scale replay buffer is several GB).
+
+    :param save_freq: Save every this many calls (env steps divided by the number of train envs)
+    :param save_path: Folder of the checkpoint files
+    """
+
+    def __init__(self, save_freq: int, save_path: str | Path, verbose: int = 0):
+        super().__init__(verbose)
+        if save_freq < 1:
+            raise ValueError(f"save_freq must be >= 1, got {save_freq}")
+        self.save_freq = save_freq
+        self.save_path = Path(save_path)
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.save_freq == 0:
+            self.save()
+        return True
+
+    def save(self) -> dict[str, str | int]:
+        self.save_path.mkdir(parents=True, exist_ok=True)
+        steps = self.num_timesteps
+        entry: dict[str, str | int] = {"num_timesteps": steps, "model": f"checkpoint_{steps}_steps.zip"}
+        _atomic(self.save_path / entry["model"], lambda tmp: self.model.save(tmp))
+        if hasattr(self.model, "save_replay_buffer") and self.model.replay_buffer is not None:
+            entry["replay_buffer"] = f"checkpoint_replay_buffer_{steps}_steps.pkl"
+            _atomic(self.save_path / entry["replay_buffer"], lambda tmp: self.model.save_replay_buffer(tmp))
+        vec_normalize = self.model.get_vec_normalize_env()
+        if vec_normalize is not None:
+            entry["vecnormalize"] = f"checkpoint_vecnormalize_{steps}_steps.pkl"
+            _atomic(self.save_path / entry["vecnormalize"], vec_normalize.save)
+        previous = read_checkpoint(self.save_path)
+        index = self.save_path / CHECKPOINT_INDEX
+        _atomic(index, lambda tmp: Path(tmp).write_text(json.dumps(entry)))
+        if previous is not None:
+            for key in ("model", "replay_buffer", "vecnormalize"):
+                if key in previous and previous[key] != entry.get(key):
+                    (self.save_path / previous[key]).unlink(missing_ok=True)
+        if self.verbose > 0:
+            print(f"Checkpoint at {steps} steps in {self.save_path}")
+        return entry
+
+
+def read_checkpoint(folder: str | Path) -> dict | None:
+    """The newest complete checkpoint recorded in ``folder``, or None."""
+    index = Path(folder) / CHECKPOINT_INDEX
+    if not index.exists():
+        return None
+    return json.loads(index.read_text())
+
+
+def _atomic(path: Path, write) -> None:
+    # SB3 appends ".zip" to a model path without one, so the temporary name keeps the suffix.
+    tmp = path.with_name(f".tmp-{path.name}")
+    write(str(tmp))
+    os.replace(tmp, path)
