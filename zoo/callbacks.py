@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.evaluation import evaluate_policy
+from stable_baselines3.common.logger import CSVOutputFormat
 from stable_baselines3.common.vec_env import VecEnv
 
 CHECKPOINT_INDEX = "checkpoint.json"
@@ -92,6 +93,34 @@ def _load_history(path: Path | None) -> dict[str, list]:
             for key in history:
                 history[key] = list(data[key])
     return history
+
+
+class CSVLogCallback(BaseCallback):
+    """
+    Also write everything the model logs (``train/``, ``sgfd/``, ``eval/``, ...) to a CSV file, whatever
+    outputs rl-zoo3 configured, so a run's curves can be read back without tensorboard.
+
+    :param path: The CSV file (a resumed run writes a new file rather than truncating the old one)
+    """
+
+    def __init__(self, path: str | Path, verbose: int = 0):
+        super().__init__(verbose)
+        self.path = Path(path)
+        self._output: CSVOutputFormat | None = None
+
+    def _on_training_start(self) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._output = CSVOutputFormat(str(self.path))
+        self.model.logger.output_formats.append(self._output)
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_training_end(self) -> None:
+        if self._output is not None:
+            self.model.logger.output_formats.remove(self._output)
+            self._output.close()
+            self._output = None
 
 
 class ResumableCheckpointCallback(BaseCallback):

@@ -18,7 +18,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecNormalize
 
 import sgfd_envs
 from zoo.algos import SGFD_ALGOS
-from zoo.callbacks import MultiSplitEvalCallback, ResumableCheckpointCallback, read_checkpoint
+from zoo.callbacks import CSVLogCallback, MultiSplitEvalCallback, ResumableCheckpointCallback, read_checkpoint
 
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 # Keys rl-zoo3 consumes itself before the rest goes to the algorithm's constructor.
@@ -128,6 +128,10 @@ class SGFDExperimentManager(ExperimentManager):
     def create_callbacks(self) -> None:
         if self.show_progress:
             self.callbacks.append(ProgressBarCallback())
+        log_name = (
+            "progress.csv" if self.checkpoint is None else f"progress_from_{self.checkpoint['num_timesteps']}.csv"
+        )
+        self.callbacks.append(CSVLogCallback(Path(self.save_path) / log_name))
         if self.save_freq > 0:
             self.callbacks.append(ResumableCheckpointCallback(max(self.save_freq // self.n_envs, 1), self.save_path))
         if self.eval_freq > 0 and not self.optimize_hyperparameters:
