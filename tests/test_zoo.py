@@ -1,0 +1,218 @@
+"""The sgfd-zoo command: train, evaluate, plot, resume and optimize through the console script."""
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from argparse import Namespace
+
+import numpy as np
+import pytest
+import yaml
+
+import sgfd_envs
+from zoo.algos import SGFD_ALGOS, register_algorithms
+from zoo.evaluate import read_results, render_tables
+from zoo.experiment import SGFDExperimentManager, ZooError, hyperparams_file
+
+ENV_ID = "SGFD/MT-walker-walk-v0"
+RUN_NAME = "SGFD-MT-walker-walk-v0"
+# A tiny state-observation run: the quick configuration cut to a few hundred steps.
+TINY = ["--quick", "-n", "800", "--num-threads", "1", "--no-progress", "--verbose", "0"]
+TINY_PARAMS = ["-params", "learning_starts:200", "classifier_start:300", "policy_kwargs:dict(net_arch=[32])"]
+
+
+def zoo(*args: str, check: bool = True, timeout: float = 600) -> subprocess.CompletedProcess:
+    result = subprocess.run(
+        [sys.executable, "-m", "zoo.cli", *args], capture_output=True, text=True, timeout=timeout, check=False
+    )
+    if check and result.returncode != 0:
+        raise AssertionError(f"sgfd-zoo {' '.join(args)} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}")
+    return result
+
+
+@pytest.mark.slow
+def test_train_both_algorithms_then_evaluate_and_plot(tmp_path):
+    logs = tmp_path / "logs"
+    for algo in ("sgfd_sac", "sac"):
+        params = TINY_PARAMS if algo == "sgfd_sac" else TINY_PARAMS[:2] + TINY_PARAMS[3:]
+        zoo("train", "--algo", algo, "--env", ENV_ID, "-f", str(logs), "--seed", "3", "--eval-freq", "400",
+            "--eval-episodes", "1", *TINY, *params)  # fmt: skip
+
+    sgfd_run = logs / "sgfd_sac" / f"{RUN_NAME}_1"
+    assert (sgfd_run / f"{RUN_NAME}.zip").exists()
+    # Evaluation during training covers every split, with the yaml's env kwargs (state observations).
+    for split in ("train", "interpolation", "extrapolation"):
+        with np.load(sgfd_run / f"evaluations_{split}.npz") as data:
+            assert data["timesteps"].tolist() == [400, 800]
+            assert data["results"].shape == (2, 1)
+    with (sgfd_run / "progress.csv").open() as handle:
+        columns = next(csv.reader(handle))
+    assert {"sgfd/classifier_accuracy", "eval/extrapolation/mean_reward"} <= set(columns)
+    config = yaml.load((sgfd_run / RUN_NAME / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
+    assert config["env_kwargs"] == {"obs_type": "state"} and config["classifier_start"] == 300
+
+    result = zoo("evaluate", "-f", str(logs), "--n-episodes", "2")
+    rows = read_results(logs / "results.csv")
+    assert {(row["algo"], row["split"]) for row in rows} == {
+        (algo, split) for algo in ("sgfd_sac", "sac") for split in ("train", "interpolation", "extrapolation")
+    }
+    assert all(row["seed"] == "3" and row["n_episodes"] == "2" for row in rows)
+    table = (logs / "results.md").read_text()
+    assert table in result.stdout
+    for heading in ("# train", "# interpolation", "# extrapolation", "MT-walker-walk", "**Total**"):
+        assert heading in table
+    header = next(line for line in table.splitlines() if "Task" in line)
+    assert [cell.strip() for cell in header.strip("|").split("|")] == ["Task", "SGFD", "DR"]
+
+    zoo("plot", "-f", str(logs))
+    png = logs / "plots" / f"{RUN_NAME}.png"
+    assert png.stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("quick", [False, True])
+@pytest.mark.parametrize("algo", sorted(SGFD_ALGOS))
+def test_every_yaml_entry_builds_its_model(algo, quick, tmp_path):
+    register_algorithms()
+    entries = yaml.safe_load(hyperparams_file(algo, quick).read_text())
+    env_ids = sgfd_envs.SGFD_IDS if not quick else sgfd_envs.SGFD_IDS[:1] + sgfd_envs.SGFD_IDS[5:6]
+    assert quick or set(sgfd_envs.SGFD_IDS) <= set(entries), "an SGFD id has no paper-scale entry"
+    for env_id in env_ids:
+        manager = SGFDExperimentManager(
+            Namespace(), algo, env_id, str(tmp_path), eval_freq=-1, quick=quick, seed=0, verbose=0, device="cpu"
+        )
+        model, saved = manager.setup_experiment()
+        expected = SGFD_ALGOS[algo].algo_class
+        assert type(model) is expected
+        assert model.n_envs == sgfd_envs.n_domains(env_id, "train")
+        for key, value in SGFD_ALGOS[algo].overrides.items():
+            assert getattr(model, key) == value and saved[key] == value
+        if not quick:
+            # The paper's setting: pixels, 3 stacked frames, frame-deduplicating buffer of 500k transitions.
+            assert model.observation_space.shape == (9, 84, 84)
+            assert model.replay_buffer.frame_stack == 3
+            assert model.replay_buffer.buffer_size * model.n_envs == 500_000
+            assert (model.batch_size, model.lr_schedule(1), model.tau) == (128, 1e-3, 0.01)
+        model.env.close()
+        del model
+
+
+def test_table_renders_in_the_papers_layout():
+    rows = [
+        {"algo": algo, "env": env, "split": split, "seed": seed, "mean_reward": value}
+        for algo, env, split, seed, value in [
+            ("sgfd_sac", "SGFD/MT-walker-walk-v0", "interpolation", 0, 500.0),
+            ("sgfd_sac", "SGFD/MT-walker-walk-v0", "interpolation", 1, 600.0),
+            ("sac", "SGFD/MT-walker-walk-v0", "interpolation", 0, 300.0),
+            ("sgfd_sac", "SGFD/MT-cheetah-run-v0", "interpolation", 0, 100.0),
+            ("sgfd_sac", "SGFD/walker-walk-v0", "test", 0, 900.0),
+            ("sac", "SGFD/walker-walk-v0", "test", 0, 700.0),
+        ]
+    ]
+    text = render_tables(rows)
+    interpolation, test = text.index("# interpolation"), text.index("# test")
+    assert test < interpolation  # backgrounds' unseen split first, then MT's
+    lines = text[interpolation:].splitlines()
+    assert [cell.strip() for cell in lines[1].strip("|").split("|")] == ["Task", "SGFD", "DR"]
+    walker = next(line for line in lines if "MT-walker-walk" in line)
+    assert "550.0 ± 50.0" in walker and "300.0 ± 0.0" in walker
+    cheetah = next(line for line in lines if "MT-cheetah-run" in line)
+    assert "100.0 ± 0.0" in cheetah and "–" in cheetah  # no DR run on cheetah
+    total = next(line for line in lines if "Total" in line)
+    assert "650.0" in total and "300.0" in total
+    assert "over 1-2 seeds" in lines[0]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["train", "--env", "SGFD/walker-wallk-v0"], "did you mean SGFD/walker-walk-v0"),
+        (["train", "--env", ENV_ID, *TINY, "-params", "clasifier_start:5"], "did you mean 'classifier_start'"),
+        (["evaluate", "-f", "/nonexistent/logs"], "does not exist"),
+        (["plot", "-f", "/nonexistent/logs"], "does not exist"),
+        (["frobnicate"], "unknown command"),
+    ],
+)
+def test_bad_input_gives_one_clear_line_and_a_nonzero_exit(args, message):
+    result = zoo(*args, check=False)
+    assert result.returncode == 2
+    assert message in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_unknown_algo_is_refused_by_the_parser():
+    result = zoo("train", "--algo", "ppo", "--env", ENV_ID, check=False)
+    assert result.returncode == 2
+    assert "invalid choice: 'ppo'" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_zoo_error_reports_missing_checkpoint_for_resume(tmp_path):
+    manager_args = (Namespace(), "sgfd_sac", ENV_ID, str(tmp_path))
+    with pytest.raises(ZooError, match="no checkpoint"):
+        SGFDExperimentManager(*manager_args, quick=True, resume=True)
+
+
+@pytest.mark.slow
+def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
+    logs = tmp_path / "logs"
+    train_args = ["train", "--algo", "sgfd_sac", "--env", ENV_ID, "-f", str(logs), "--seed", "0", *TINY[:1]]
+    train_args += ["--num-threads", "1", "--no-progress", "--verbose", "0", *TINY_PARAMS, "--eval-episodes", "1"]
+    process = subprocess.Popen(
+        [sys.executable, "-m", "zoo.cli", *train_args, "-n", "100000", "--save-freq", "400", "--eval-freq", "400"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    run = logs / "sgfd_sac" / f"{RUN_NAME}_1"
+    deadline = time.monotonic() + 300
+    try:
+        while (
+            not (run / "checkpoint.json").exists()
+            or json.loads((run / "checkpoint.json").read_text())["num_timesteps"] < 800
+        ):
+            assert process.poll() is None, process.stderr.read().decode()[-3000:]
+            assert time.monotonic() < deadline, "no checkpoint within 300 s"
+            time.sleep(0.5)
+    finally:
+        os.kill(process.pid, signal.SIGKILL)
+        process.wait()
+    checkpoint = json.loads((run / "checkpoint.json").read_text())
+    assert not (run / f"{RUN_NAME}.zip").exists()
+    assert (run / checkpoint["model"]).exists() and (run / checkpoint["replay_buffer"]).exists()
+
+    result = zoo(*train_args, "-n", "1600", "--save-freq", "400", "--eval-freq", "400", "--resume")
+    assert f"Resuming {run}" in result.stdout
+    assert not (logs / "sgfd_sac" / f"{RUN_NAME}_2").exists(), "resume must continue the run, not start another"
+    assert (run / f"{RUN_NAME}.zip").exists()
+    from sb3_sgfd import SGFD_SAC
+
+    model = SGFD_SAC.load(run / f"{RUN_NAME}.zip", custom_objects={"buffer_size": 1})
+    assert model.num_timesteps == 1600
+    with np.load(run / "evaluations_train.npz") as data:
+        steps = data["timesteps"].tolist()
+    # The evaluations before the kill are kept and the resumed run appends to them.
+    assert steps[0] == 400 and steps[-1] == 1600 and steps == sorted(steps)
+    assert len(list(run.glob("checkpoint_*_steps.zip"))) == 1, "only the newest checkpoint is kept"
+
+
+@pytest.mark.slow
+def test_optimize_shares_a_study_through_a_journal_file(tmp_path):
+    storage = tmp_path / "study.log"
+    args = ["optimize", "--algo", "sgfd_sac", "--env", ENV_ID, "-f", str(tmp_path / "logs"), *TINY[:1]]
+    args += ["-n", "400", "--num-threads", "1", "--no-progress", "--verbose", "0", "--n-evaluations", "1"]
+    args += ["--eval-episodes", "1", "--storage", str(storage), "--study-name", "shared", "--n-startup-trials", "1"]
+    args += ["-params", "learning_starts:100", "classifier_start:200"]
+    for _ in range(2):  # two workers, one after the other, on the same study
+        zoo(*args, "--n-trials", "1", "--sampler", "random", "--pruner", "none")
+    import optuna
+
+    study = optuna.load_study(
+        study_name="shared",
+        storage=optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(str(storage))),
+    )
+    complete = [trial for trial in study.trials if trial.state == optuna.trial.TrialState.COMPLETE]
+    assert len(complete) == 2
+    assert {"n_rff", "reweight_lr", "saliency_temperature", "accuracy_threshold"} <= set(complete[0].params)
+    assert list((tmp_path / "logs" / "sgfd_sac").glob("report_*.csv"))
