@@ -4,7 +4,9 @@
 
 - ``SGFD/{walker-walk,cheetah-run,finger-spin,walker-run,finger-turn}-v0``: distracting backgrounds
   (splits ``train``, ``test``);
-- ``SGFD/MT-...-v0``: modified morphology (splits ``train``, ``interpolation``, ``extrapolation``).
+- ``SGFD/MT-...-v0``: modified morphology (splits ``train``, ``interpolation``, ``extrapolation``);
+- ``SGFD/CW-{picking,pushing}-v0`` (:data:`CAUSAL_WORLD_IDS`): Causal World with the block's mass or size
+  per domain, the MT splits; making them needs ``pip install -e ".[causalworld]"``.
 """
 
 import os
@@ -24,6 +26,7 @@ if sys.platform.startswith("linux") and "MUJOCO_GL" not in os.environ:
 
 # Imported after the line above: it loads dm_control.
 from sgfd_envs.registry import (
+    CAUSAL_WORLD_IDS,
     SGFD_IDS,
     make_domain_vec_env,
     n_domains,
@@ -34,4 +37,4 @@ from sgfd_envs.registry import (
 
 register_envs()
 
-__all__ = ["SGFD_IDS", "make_domain_vec_env", "n_domains", "splits", "test_splits"]
+__all__ = ["CAUSAL_WORLD_IDS", "SGFD_IDS", "make_domain_vec_env", "n_domains", "splits", "test_splits"]

@@ -20,6 +20,7 @@ from sgfd_envs.backgrounds import (
     make_background,
     n_background_domains,
 )
+from sgfd_envs.causal_world import make_causal_world_env
 from sgfd_envs.dmc import EPISODE_CONTROL_STEPS, DMCEnv, DomainLabel, check_image_size
 from sgfd_envs.morphology import MORPHOLOGY_SPLITS, check_setting, resolve_split_settings
 
@@ -28,7 +29,13 @@ if TYPE_CHECKING:
 
 BACKGROUND = "background"
 MORPHOLOGY = "morphology"
-SPLITS: dict[str, tuple[str, ...]] = {BACKGROUND: BACKGROUND_SPLITS, MORPHOLOGY: MORPHOLOGY_SPLITS}
+# Causal World (optional extra): an object property per domain, with the MT ids' settings and splits.
+CAUSAL_WORLD = "causal_world"
+SPLITS: dict[str, tuple[str, ...]] = {
+    BACKGROUND: BACKGROUND_SPLITS,
+    MORPHOLOGY: MORPHOLOGY_SPLITS,
+    CAUSAL_WORLD: MORPHOLOGY_SPLITS,
+}
 
 
 @dataclass(frozen=True)
@@ -37,7 +44,8 @@ class TaskEntry:
 
     :param robot: dm_control robot (``walker``, ``cheetah``, ``finger``)
     :param task: task of that robot
-    :param variation: ``"background"`` (task-irrelevant) or ``"morphology"`` (task-relevant, MT)
+    :param variation: ``"background"`` (task-irrelevant), ``"morphology"`` (task-relevant, MT) or
+        ``"causal_world"`` (an object property, Causal World)
     :param action_repeat: dm_control steps per agent step (paper: 2)
     """
 
@@ -47,8 +55,10 @@ class TaskEntry:
     action_repeat: int = 2
 
     @property
-    def max_episode_steps(self) -> int:
-        """Agent steps in an episode."""
+    def max_episode_steps(self) -> int | None:
+        """Agent steps in an episode (None: Causal World ends its episodes itself)."""
+        if self.variation == CAUSAL_WORLD:
+            return None
         return math.ceil(EPISODE_CONTROL_STEPS / self.action_repeat)
 
 
@@ -64,8 +74,12 @@ TASKS: dict[str, TaskEntry] = {
     "SGFD/MT-finger-spin-v0": TaskEntry("finger", "spin", MORPHOLOGY),
     "SGFD/MT-walker-run-v0": TaskEntry("walker", "run", MORPHOLOGY),
     "SGFD/MT-finger-turn-v0": TaskEntry("finger", "turn", MORPHOLOGY),
+    "SGFD/CW-picking-v0": TaskEntry("trifinger", "picking", CAUSAL_WORLD, action_repeat=1),
+    "SGFD/CW-pushing-v0": TaskEntry("trifinger", "pushing", CAUSAL_WORLD, action_repeat=1),
 }
-SGFD_IDS: tuple[str, ...] = tuple(TASKS)
+# The DeepMind Control benchmark of the paper's tables; the Causal World ids are its case studies.
+SGFD_IDS: tuple[str, ...] = tuple(i for i, entry in TASKS.items() if entry.variation != CAUSAL_WORLD)
+CAUSAL_WORLD_IDS: tuple[str, ...] = tuple(i for i, entry in TASKS.items() if entry.variation == CAUSAL_WORLD)
 
 
 def task_entry(env_id: str) -> TaskEntry:
@@ -191,7 +205,11 @@ def make_morphology_env(env_id: str, split: str | None = None, domain: int | Non
                   render_mode=render_mode)
 
 
-ENTRY_POINTS: dict[str, Callable[..., DMCEnv]] = {BACKGROUND: make_background_env, MORPHOLOGY: make_morphology_env}
+ENTRY_POINTS: dict[str, Callable[..., gym.Env]] = {
+    BACKGROUND: make_background_env,
+    MORPHOLOGY: make_morphology_env,
+    CAUSAL_WORLD: make_causal_world_env,
+}
 
 
 def register_envs() -> None:

@@ -29,6 +29,11 @@ commands:
   evaluate    evaluate every trained model of a log folder on every split; write and print tables
   plot        learning curves per split and algorithm from a log folder
   quick       the quick demo: train SGFD and SAC briefly, evaluate on the unseen domains, print the table
+  sweep       train algos x envs x seeds as Ray tasks (here or on a cluster, --address), resumable; then evaluate
+  correlation-study    |correlation| of the changed feature with the others: raw, global and SGFD weights
+  saliency-maps        |d action / d pixel| of a trained pixel agent on training and test domains (PNG grid)
+  weighted-samples     a batch from two domains, frames sorted by SGFD's learned weight (PNG)
+  classifier-accuracy  the domain classifier's accuracy during training, mean and band over seeds (PNG)
 
 'sgfd-zoo COMMAND -h' shows a command's options."""
 
@@ -51,7 +56,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _commands() -> dict[str, Callable[[list[str]], int | None]]:
-    from zoo import evaluate, plot, quick
+    from zoo import correlation, evaluate, figures, plot, quick, sweep
 
     return {
         "train": train,
@@ -60,6 +65,11 @@ def _commands() -> dict[str, Callable[[list[str]], int | None]]:
         "evaluate": evaluate.main,
         "plot": plot.main,
         "quick": quick.main,
+        "sweep": sweep.main,
+        "correlation-study": correlation.main,
+        "saliency-maps": figures.saliency_maps_main,
+        "weighted-samples": figures.weighted_samples_main,
+        "classifier-accuracy": figures.classifier_accuracy_main,
     }
 
 
