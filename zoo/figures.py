@@ -15,6 +15,7 @@ import argparse
 import csv
 import json
 import math
+import textwrap
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -200,7 +201,7 @@ def saliency_figure(
     for ax in axes.flat:
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.suptitle(title, fontsize=9)
+    fig.suptitle(_wrap(title, fig), fontsize=9)
     return fig
 
 
@@ -322,7 +323,7 @@ def weighted_samples_figure(
             ax.imshow(frames[index], interpolation="nearest")
             ax.set_title(f"w={weights[index]:.2f}", fontsize=7)
         subfig.suptitle(f"{name}: {len(group)} frames, mean weight {weights[group].mean():.3f}", fontsize=9)
-    fig.suptitle(title, fontsize=9)
+    fig.suptitle(_wrap(title, fig), fontsize=9)
     return fig
 
 
@@ -563,6 +564,11 @@ def _run_parser(prog: str, description: str) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0, help="seeds the envs and the weights' random features")
     parser.add_argument("-o", "--out", type=Path, help="output folder (default: <folder>/figures)")
     return parser
+
+
+def _wrap(title: str, fig: Figure) -> str:
+    """The title broken into lines that fit the figure's width (about 0.07 inch per character at 9 pt)."""
+    return textwrap.fill(title, width=max(20, int(fig.get_figwidth() / 0.07)))
 
 
 def _out_dir(args: argparse.Namespace) -> Path:
