@@ -80,7 +80,7 @@ class Case:
         self.batch = full._replace(z=full.z[N_TRAIN:], domains=full.domains[N_TRAIN:])
         self.classifier = train_classifier(self.train_z, self.train_domains, steps=300, seed=seed)
         self.probs = feature_probabilities(self.classifier, self.batch.z)
-        literal = {"temperature": 1.0, "normalize": False}
+        literal = {"temperature": 1.0, "normalize": False, "smoothing": 0.0}
         self.literal_probs = feature_probabilities(self.classifier, self.batch.z, **literal)
         # the same classifier, less confident: same decisions, logits 10x smaller
         quiet = ScaledLogits(self.classifier, 0.1)
@@ -159,7 +159,10 @@ def saliency_table(cases: list[Case], d: int) -> None:
     ]
     rows = []
     for label, get_classifier in classifiers:
-        for name, kwargs in (("default", {}), ("paper (raw, T=1)", {"temperature": 1.0, "normalize": False})):
+        for name, kwargs in (
+            ("default", {}),
+            ("paper (raw, T=1)", {"temperature": 1.0, "normalize": False, "smoothing": 0.0}),
+        ):
             top_first, p_top, p_tied, accuracy, max_saliency = [], [], [], [], []
             for case in cases:
                 batch, classifier = case.batch, get_classifier(case)

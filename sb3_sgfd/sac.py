@@ -57,6 +57,8 @@ class SGFD_SAC(SAC):
     :param reweight_weight_decay: Weight decay of the weight solver
     :param reweight_ess_penalty: Penalty on n / ESS - 1 that keeps the weights from collapsing on few samples
     :param saliency_temperature: Temperature of the softmax over max-normalised saliency giving p(Z_i)
+    :param saliency_smoothing: Weight of the uniform distribution mixed into p(Z_i) (see
+        :func:`sb3_sgfd.saliency.feature_probabilities`)
     :param use_rff: Decorrelate random Fourier features (False: the features themselves, linear only)
     :param use_saliency: Weight feature pairs by the classifier's saliency (False: uniform, global decorrelation)
     :param reweight_critic: Apply the weights to the critic loss
@@ -111,6 +113,7 @@ class SGFD_SAC(SAC):
         reweight_weight_decay: float = 1e-4,
         reweight_ess_penalty: float = 0.35,
         saliency_temperature: float = 0.1,
+        saliency_smoothing: float = 0.3,
         use_rff: bool = True,
         use_saliency: bool = True,
         reweight_critic: bool = True,
@@ -145,6 +148,7 @@ class SGFD_SAC(SAC):
         self.reweight_weight_decay = reweight_weight_decay
         self.reweight_ess_penalty = reweight_ess_penalty
         self.saliency_temperature = saliency_temperature
+        self.saliency_smoothing = saliency_smoothing
         self.use_rff = use_rff
         self.use_saliency = use_saliency
         self.reweight_critic = reweight_critic
@@ -347,7 +351,9 @@ class SGFD_SAC(SAC):
 
         feature_probs = None
         if self.use_saliency:
-            feature_probs = feature_probabilities(self.classifier, z, temperature=self.saliency_temperature)
+            feature_probs = feature_probabilities(
+                self.classifier, z, temperature=self.saliency_temperature, smoothing=self.saliency_smoothing
+            )
             self._record("top_saliency_feature", float(feature_probs.argmax()))
         self._rff_generator.manual_seed(self.rff_seed + update_index)
         weights, loss_before, loss_after = learn_sample_weights(

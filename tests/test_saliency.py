@@ -101,14 +101,24 @@ def test_paper_form_is_softmax_of_raw_saliency_and_default_is_scale_free():
     z = torch.tensor([[5.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 2.0]])
     classifier = linear_classifier()
     saliency = torch.tensor([1 / 3, 2 / 3, 2.0])
-    literal = feature_probabilities(classifier, z, temperature=1.0, normalize=False)
+    literal = feature_probabilities(classifier, z, temperature=1.0, normalize=False, smoothing=0.0)
     assert torch.allclose(literal, torch.softmax(saliency, dim=0))
     default = feature_probabilities(classifier, z)
-    assert torch.allclose(default, torch.softmax(saliency / 2.0 / 0.1, dim=0))
+    assert torch.allclose(default, 0.7 * torch.softmax(saliency / 2.0 / 0.1, dim=0) + 0.3 / 3)
     # Less confident logits flatten the paper's p but leave the normalised one unchanged.
     quiet = ScaledLogits(classifier, 0.1)
     assert torch.allclose(feature_probabilities(quiet, z), default)
-    assert feature_probabilities(quiet, z, temperature=1.0, normalize=False).max() < literal.max()
+    assert feature_probabilities(quiet, z, temperature=1.0, normalize=False, smoothing=0.0).max() < literal.max()
+
+
+def test_smoothing_gives_every_partner_a_floor_and_keeps_the_order():
+    classifier, batch = trained_classifier(d=20, n_tied=4, seed=1)
+    sharp = feature_probabilities(classifier, batch.z, smoothing=0.0)
+    smooth = feature_probabilities(classifier, batch.z, smoothing=0.3)
+    assert torch.allclose(smooth, 0.7 * sharp + 0.3 / 20)
+    assert smooth.min() >= 0.3 / 20 > sharp.min()
+    assert torch.equal(smooth.argsort(), sharp.argsort()) and int(smooth.argmax()) == batch.top
+    assert smooth.sum().item() == pytest.approx(1.0, abs=1e-6)
 
 
 def test_lower_temperature_concentrates_probability():
@@ -133,7 +143,7 @@ def test_the_only_domain_feature_gets_the_largest_probability():
     classifier, batch = trained_classifier(d=20, n_tied=0, seed=0)
     probs = feature_probabilities(classifier, batch.z)
     assert int(probs.argmax()) == batch.top
-    literal = feature_probabilities(classifier, batch.z, temperature=1.0, normalize=False)
+    literal = feature_probabilities(classifier, batch.z, temperature=1.0, normalize=False, smoothing=0.0)
     assert int(literal.argmax()) == batch.top
 
 
@@ -167,6 +177,8 @@ def test_saliency_guided_weights_beat_global_ones_end_to_end():
         ({"temperature": 0.0}, ValueError, "temperature"),
         ({"temperature": float("inf")}, ValueError, "temperature"),
         ({"temperature": True}, ValueError, "temperature"),
+        ({"smoothing": -0.1}, ValueError, "smoothing"),
+        ({"smoothing": 1.5}, ValueError, "smoothing"),
         ({"z": torch.zeros(3)}, ValueError, "z must have shape"),
         ({"z": torch.full((2, 3), float("nan"))}, ValueError, "NaN or inf"),
         ({"z": torch.zeros(2, 3, dtype=torch.int64)}, TypeError, "floating-point"),

@@ -54,6 +54,7 @@ def sample_sgfd_sac_params(
         "reweight_iters": trial.suggest_int("reweight_iters", 5, 30),
         "reweight_lr": trial.suggest_float("reweight_lr", 1e-2, 10.0, log=True),
         "saliency_temperature": trial.suggest_float("saliency_temperature", 0.05, 2.0, log=True),
+        "saliency_smoothing": trial.suggest_float("saliency_smoothing", 0.0, 0.7),
     }
     return convert_sgfd_sac_params(sampled)
 
