@@ -64,9 +64,18 @@ class SGFDExperimentManager(ExperimentManager):
     :param quick: Use the quick configuration (``zoo/hyperparams/quick``) when no ``-conf`` is given
     :param resume: Continue the newest run from its last checkpoint instead of starting a new one
     :param progress: Show a progress bar; None: when stdout is a terminal
+    :param run_id: Write to (and resume) the run folder ``<EnvName>_<run_id>``; None: rl-zoo3's newest id + 1
     """
 
-    def __init__(self, *args: Any, quick: bool = False, resume: bool = False, progress: bool | None = None, **kwargs):
+    def __init__(
+        self,
+        *args: Any,
+        quick: bool = False,
+        resume: bool = False,
+        progress: bool | None = None,
+        run_id: int | None = None,
+        **kwargs,
+    ):
         algo = args[1] if len(args) > 1 else kwargs["algo"]
         if not kwargs.get("config"):
             kwargs["config"] = str(hyperparams_file(algo, quick))
@@ -74,6 +83,11 @@ class SGFDExperimentManager(ExperimentManager):
             progress = kwargs.get("show_progress") or sys.stdout.isatty()
         kwargs["show_progress"] = progress
         super().__init__(*args, **kwargs)
+        if run_id is not None:
+            # Runs started together (sgfd-zoo sweep) would race for rl-zoo3's "newest id + 1".
+            self.save_path = str(Path(self.log_path) / f"{self.env_name}_{run_id}")
+            self.params_path = f"{self.save_path}/{self.env_name}"
+        self.run_id = run_id
         self.resume = resume
         self.checkpoint: dict | None = None
         self.algo_kwargs: dict[str, Any] = {}
@@ -150,10 +164,13 @@ class SGFDExperimentManager(ExperimentManager):
     # -- resuming --------------------------------------------------------------------------------
 
     def _point_at_run_to_resume(self) -> None:
-        runs = sorted(
-            Path(self.log_path).glob(f"{self.env_name}_*"),
-            key=lambda path: int(path.name.rsplit("_", 1)[1]) if path.name.rsplit("_", 1)[1].isdigit() else -1,
-        )
+        if self.run_id is not None:
+            runs = [Path(self.save_path)]
+        else:
+            runs = sorted(
+                Path(self.log_path).glob(f"{self.env_name}_*"),
+                key=lambda path: int(path.name.rsplit("_", 1)[1]) if path.name.rsplit("_", 1)[1].isdigit() else -1,
+            )
         runs = [run for run in runs if read_checkpoint(run) is not None]
         if not runs:
             raise ZooError(
