@@ -1,0 +1,203 @@
+"""``sgfd-zoo sweep``: run ids, argument errors, and real sweeps of tiny runs on real local Ray instances."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import shutil
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import ray
+import yaml
+
+from zoo import cli, sweep
+from zoo.callbacks import CHECKPOINT_INDEX
+from zoo.evaluate import find_runs
+
+# ray is imported above, at collection: its log handler keeps the sys.stderr of its import, and one
+# imported inside a test (under capsys) would write to a closed stream in the tests after it.
+
+ENV = "SGFD/walker-walk-v0"
+NAME = "SGFD-walker-walk-v0"
+# Tiny runs: state observations, 600 steps (no gradient step before 1000), checkpoints at 300 and 600.
+TINY = ["--quick", "-n", "600", "--eval-freq", "-1", "--save-freq", "300", "--verbose", "0"]
+
+
+def make_run(folder: Path, algo: str, run_id: int, seed: int, finished: bool = False, checkpoint: int = 0) -> Path:
+    """A run folder as rl-zoo3 leaves it: args and config, the final model if finished, a checkpoint index."""
+    run = folder / algo / f"{NAME}_{run_id}"
+    (run / NAME).mkdir(parents=True)
+    (run / NAME / "args.yml").write_text(yaml.safe_dump({"seed": seed}))
+    (run / NAME / "config.yml").write_text(yaml.safe_dump({}))
+    if finished:
+        (run / f"{NAME}.zip").write_bytes(b"model")
+    if checkpoint:
+        index = {"num_timesteps": checkpoint, "model": f"checkpoint_{checkpoint}_steps.zip"}
+        (run / CHECKPOINT_INDEX).write_text(json.dumps(index))
+    return run
+
+
+def test_plan_skips_finished_runs_resumes_checkpoints_and_never_shares_a_folder(tmp_path: Path) -> None:
+    make_run(tmp_path, "sgfd_sac", 3, seed=0, finished=True)  # seed 0 done by `sgfd-zoo train`
+    make_run(tmp_path, "sgfd_sac", 1, seed=1, checkpoint=200)
+    make_run(tmp_path, "sgfd_sac", 5, seed=1, checkpoint=600)  # the furthest checkpoint of seed 1
+    make_run(tmp_path, "sgfd_sac", 2, seed=9)  # another seed's run sits in seed 2's folder
+    make_run(tmp_path, "sgfd_sac", 4, seed=7)  # ... and in seed 4's
+
+    jobs, done = sweep.plan(tmp_path, ["sgfd_sac", "sac"], [ENV], [0, 1, 2, 4])
+
+    assert done == [("sgfd_sac", ENV, 0)]
+    ids = {(job.algo, job.seed): job.run_id for job in jobs}
+    assert ids == {
+        ("sac", 0): 0,
+        ("sgfd_sac", 1): 5,
+        ("sac", 1): 1,
+        ("sgfd_sac", 2): 6,
+        ("sac", 2): 2,
+        ("sgfd_sac", 4): 7,
+        ("sac", 4): 4,
+    }
+    assert [job.seed for job in jobs] == [0, 1, 1, 2, 2, 4, 4]  # seed by seed: whole tables fill up first
+    assert jobs[1].run_dir == tmp_path / "sgfd_sac" / f"{NAME}_5"
+
+    # Seed 2 started in its new folder and crashed before a checkpoint: the next sweep restarts it there.
+    make_run(tmp_path, "sgfd_sac", 6, seed=2)
+    again = {(job.algo, job.seed): job.run_id for job in sweep.plan(tmp_path, ["sgfd_sac"], [ENV], [2, 4])[0]}
+    assert again == {("sgfd_sac", 2): 6, ("sgfd_sac", 4): 7}
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--algos", "sgfd"], "--algos: 'sgfd' is unknown (did you mean sgfd_sac?)"),
+        (
+            ["--envs", "SGFD/walker-wlk-v0"],
+            "--envs: 'SGFD/walker-wlk-v0' is unknown (did you mean SGFD/walker-walk-v0?)",
+        ),
+        (["--seeds", "-1"], "--seeds: -1 is not in 0.."),
+        (["--seed", "3"], "--seed is set per run by the sweep; use --seeds"),
+        (["--resume"], "--resume is set per run by the sweep"),
+        (["--cpus-per-run", "0"], "--cpus-per-run must be > 0"),
+        (["--num-cpus", "1", "--cpus-per-run", "2"], "--cpus-per-run 2 is more than the 1 CPUs"),
+        (["--address", "127.0.0.1:6379", "--num-cpus", "2"], "--num-cpus sizes the local Ray instance"),
+        (["--address", "127.0.0.1:{port}"], "--address 127.0.0.1:{port}: no Ray cluster answers there"),
+    ],
+)
+def test_bad_arguments_exit_2_with_one_line_naming_the_argument(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], message: str
+) -> None:
+    port = _free_port()
+    argv = ["--algos", "sgfd_sac", "--envs", ENV, "--seeds", "0", "-f", str(tmp_path / "logs")]
+    # Later flags win: each case overrides one of the valid ones above.
+    argv += [arg.format(port=port) for arg in extra]
+    assert cli.main(["sweep", *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("sgfd-zoo sweep: error: ")
+    assert message.format(port=port) in err[-1]
+    assert not any(line.startswith("Traceback") for line in err)
+    assert not (tmp_path / "logs").exists()
+
+
+@pytest.fixture(scope="module")
+def first_sweep(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int, str]:
+    """
+    Two tiny SGFD runs and two SAC runs that fail (n_rff is no SAC hyperparameter), on a local Ray
+    instance the sweep starts itself; then the evaluation of what finished.
+    """
+    folder = tmp_path_factory.mktemp("sweep") / "logs"
+    argv = ["sweep", "--algos", "sgfd_sac", "sac", "--envs", ENV, "--seeds", "0", "1", "-f", str(folder)]
+    argv += ["--num-cpus", "2", "--n-episodes", "1", *TINY, "-params", "n_rff:2"]
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = cli.main(argv)
+    return folder, code, out.getvalue()
+
+
+@pytest.mark.slow
+def test_sweep_trains_each_seed_into_its_own_folder_reports_failures_and_evaluates(
+    first_sweep: tuple[Path, int, str],
+) -> None:
+    folder, code, out = first_sweep
+    assert not ray.is_initialized()  # the sweep shut its Ray instance down
+    assert code == 1, out
+    runs = sorted(find_runs(folder), key=lambda run: run.seed)
+    assert [(run.algo, run.seed, run.path.name) for run in runs] == [
+        ("sgfd_sac", 0, f"{NAME}_0"),
+        ("sgfd_sac", 1, f"{NAME}_1"),
+    ]
+    for run in runs:
+        log = run.path.with_name(f"{run.path.name}.log").read_text()
+        assert f"sgfd_sac on {ENV} seed {run.seed}" in log and "(new run)" in log
+    # The failures: in the summary with their reason and log, and no run folder left behind.
+    summary = out.rsplit("\nsweep: ", 1)[1]
+    assert summary.startswith("2 trained, 0 already finished, 2 failed")
+    for seed in (0, 1):
+        log = folder / "sac" / f"{NAME}_{seed}.log"
+        assert f"FAILED sac on {ENV} seed {seed}: ZooError: unknown hyperparameter(s) for sac: 'n_rff'" in summary
+        assert f"(log: {log})" in summary
+        assert "Traceback" in log.read_text()
+    assert not (folder / "sac" / f"{NAME}_0").exists()
+    # The tables cover what finished.
+    with (folder / "results.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert {(row["algo"], row["seed"], row["split"]) for row in rows} == {
+        ("sgfd_sac", seed, split) for seed in ("0", "1") for split in ("train", "test")
+    }
+    assert "# train (mean ± std over 2 seeds)" in out
+
+
+@pytest.fixture
+def ray_cluster() -> Iterator[str]:
+    """A Ray instance of this test process, standing for an existing cluster; its address."""
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        yield ray.get_runtime_context().gcs_address
+    finally:
+        ray.shutdown()
+
+
+@pytest.mark.slow
+def test_sweep_on_an_existing_cluster_skips_finished_runs_and_resumes_a_crashed_one(
+    first_sweep: tuple[Path, int, str], ray_cluster: str, tmp_path: Path
+) -> None:
+    folder = tmp_path / "logs"
+    shutil.copytree(first_sweep[0], folder)
+    # Seed 0 "crashed" after its last checkpoint (600 steps): no final model. Seed 1 is finished.
+    crashed = folder / "sgfd_sac" / f"{NAME}_0"
+    (crashed / f"{NAME}.zip").unlink()
+    finished_model = folder / "sgfd_sac" / f"{NAME}_1" / f"{NAME}.zip"
+    finished_mtime = finished_model.stat().st_mtime_ns
+
+    argv = ["sweep", "--algos", "sgfd_sac", "--envs", ENV, "--seeds", "0", "1", "-f", str(folder)]
+    argv += ["--address", ray_cluster, "--no-evaluate", *TINY, "-n", "900"]  # the resumed run goes on to 900
+    result = subprocess.run(
+        [sys.executable, "-m", "zoo.cli", *argv],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "1 finished already, 1 to train (1 to resume)" in result.stdout
+    assert f"[1/1] finished sgfd_sac on {ENV} seed 0 (resumed): {crashed}" in result.stdout
+    assert finished_model.stat().st_mtime_ns == finished_mtime
+    # Continued, not restarted: same folder, a log from step 600 on, a checkpoint at 900, the final model.
+    assert (crashed / "progress_from_600.csv").exists()
+    assert json.loads((crashed / CHECKPOINT_INDEX).read_text())["num_timesteps"] == 900
+    assert (crashed / f"{NAME}.zip").exists()
+    assert sorted(path.name for path in (folder / "sgfd_sac").iterdir() if path.is_dir()) == [f"{NAME}_0", f"{NAME}_1"]
+    log = (folder / "sgfd_sac" / f"{NAME}_0.log").read_text()
+    assert "(new run)" in log and "(resuming from its checkpoint)" in log  # appended, the first attempt kept

@@ -1,0 +1,449 @@
+"""
+``sgfd-zoo sweep``: train every (algorithm, env, seed) as a Ray task, on this machine or on an existing
+Ray cluster (``--address``), then evaluate the finished runs and print the paper's tables.
+
+Each run is ``sgfd-zoo train`` in a fresh Ray worker process, writing the log layout ``train`` writes:
+LOGDIR/<algo>/<EnvName>_<run id>/, its output going to LOGDIR/<algo>/<EnvName>_<run id>.log. A run's id
+is its seed unless that folder already holds another seed's run. Running the same command again resumes
+the sweep: finished runs are skipped, and unfinished ones continue from their last checkpoint.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import functools
+import logging
+import math
+import os
+import socket
+import sys
+import time
+import traceback
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+from huggingface_sb3 import EnvironmentName
+
+import sgfd_envs  # before anything imports dm_control: it picks MuJoCo's headless GL backend
+from zoo import cli, evaluate
+from zoo.algos import SGFD_ALGOS
+from zoo.callbacks import read_checkpoint
+from zoo.experiment import SGFDExperimentManager, ZooError
+
+# Train flags the sweep sets per run itself, and what to use instead.
+SWEEP_OWNED_FLAGS = {
+    "--algo": "--algos",
+    "--env": "--envs",
+    "--seed": "--seeds",
+    "--resume": "nothing (the sweep resumes every run that has a checkpoint)",
+    "-uuid": "nothing (each run gets its own folder)",
+    "--uuid": "nothing (each run gets its own folder)",
+    "-optimize": "sgfd-zoo optimize",
+    "--optimize-hyperparameters": "sgfd-zoo optimize",
+}
+MAX_SEED = 2**32 - 1  # numpy's limit, which rl-zoo3 seeds with
+
+
+@dataclass(frozen=True)
+class Job:
+    """
+    One run of the sweep.
+
+    :param algo: Algorithm key
+    :param env_id: SGFD env id
+    :param seed: Training seed
+    :param run_id: The run folder is ``<folder>/<algo>/<EnvName>_<run_id>``
+    :param folder: The sweep's log folder (absolute)
+    """
+
+    algo: str
+    env_id: str
+    seed: int
+    run_id: int
+    folder: Path
+
+    @property
+    def run_dir(self) -> Path:
+        return self.folder / self.algo / f"{EnvironmentName(self.env_id)}_{self.run_id}"
+
+    @property
+    def log_file(self) -> Path:
+        # Next to the run folder, not in it: a run that fails early leaves no half-made run folder behind.
+        return self.run_dir.with_name(f"{self.run_dir.name}.log")
+
+    def __str__(self) -> str:
+        return f"{self.algo} on {self.env_id} seed {self.seed}"
+
+
+# -- planning ------------------------------------------------------------------------------------
+
+
+def plan(
+    folder: Path, algos: Sequence[str], env_ids: Sequence[str], seeds: Sequence[int]
+) -> tuple[list[Job], list[tuple[str, str, int]]]:
+    """
+    The runs still to train (new or to resume), and the (algo, env, seed) already finished in ``folder``.
+
+    :param folder: Log folder (absolute)
+    :param algos: Algorithm keys
+    :param env_ids: SGFD env ids
+    :param seeds: Training seeds
+    """
+    runs = evaluate.find_runs(folder, list(algos), list(env_ids)) if folder.is_dir() else []
+    finished = {(run.algo, run.env_id, run.seed) for run in runs}
+    jobs, done = [], []
+    assigned: dict[tuple[str, str], set[int]] = {}
+    # Seed by seed: the first runs to finish fill a whole table for one seed, not many seeds of one cell.
+    for seed in seeds:
+        for env_id in env_ids:
+            for algo in algos:
+                if (algo, env_id, seed) in finished:
+                    done.append((algo, env_id, seed))
+                    continue
+                taken = assigned.setdefault((algo, env_id), set())
+                run_id = choose_run_id(folder / algo, env_id, seed, [*seeds, *taken])
+                taken.add(run_id)
+                jobs.append(Job(algo, env_id, seed, run_id, folder))
+    return jobs, done
+
+
+def choose_run_id(algo_dir: Path, env_id: str, seed: int, reserved: Sequence[int]) -> int:
+    """
+    The run id of an unfinished ``seed``, decided here (in one process) because rl-zoo3's own choice,
+    newest id + 1, races when runs start together. In order of preference:
+
+    1. the unfinished run of this seed with the furthest checkpoint (it will be resumed);
+    2. an unfinished run of this seed without a checkpoint (restarted there, so that failed attempts do
+       not pile up as folders; it has no model to lose), the one with id ``seed`` first;
+    3. the seed itself, unless that folder holds another seed's run (from ``sgfd-zoo train``, say);
+    4. one more than any id in the folder and any of ``reserved`` (the sweep's seeds, ids already given).
+
+    :param algo_dir: ``<log folder>/<algo>``
+    :param env_id: SGFD env id
+    :param seed: Training seed
+    :param reserved: Ids a new id must not take
+    """
+    existing = run_seeds(algo_dir, str(EnvironmentName(env_id)))
+    mine = {run_id: path for run_id, (path, run_seed) in existing.items() if run_seed == seed}
+    checkpoints = {run_id: read_checkpoint(path) for run_id, path in mine.items()}
+    resumable = [(checkpoint["num_timesteps"], run_id) for run_id, checkpoint in checkpoints.items() if checkpoint]
+    if resumable:
+        return max(resumable)[1]
+    if mine:
+        return seed if seed in mine else max(mine)
+    if seed not in existing or existing[seed][1] is None:
+        return seed
+    return max([*existing, *reserved, seed]) + 1
+
+
+def run_seeds(algo_dir: Path, env_name: str) -> dict[int, tuple[Path, int | None]]:
+    """
+    Run folders ``<env_name>_<id>`` in ``algo_dir``: id -> (folder, seed from its args.yml or None).
+
+    :param algo_dir: ``<log folder>/<algo>``
+    :param env_name: rl-zoo3's env name (the id with "/" replaced)
+    """
+    runs: dict[int, tuple[Path, int | None]] = {}
+    if not algo_dir.is_dir():
+        return runs
+    for path in algo_dir.glob(f"{env_name}_*"):
+        run_id = path.name.rpartition("_")[2]
+        if not path.is_dir() or not run_id.isdigit():
+            continue
+        args_file = path / env_name / "args.yml"
+        seed = None
+        if args_file.exists():
+            seed = yaml.load(args_file.read_text(), Loader=yaml.UnsafeLoader).get("seed")
+        runs[int(run_id)] = (path, None if seed is None else int(seed))
+    return runs
+
+
+# -- one run, in a Ray worker -----------------------------------------------------------------------
+
+
+def train_job(job: Job, train_args: list[str], cwd: str) -> bool:
+    """
+    The Ray task: ``sgfd-zoo train`` of ``job`` in this worker process, its output appended to the job's
+    log file. Resumes from the run's checkpoint when it has one. Returns whether it resumed.
+
+    :param job: The run
+    :param train_args: Flags for ``sgfd-zoo train`` besides --algo, --env, --seed, -f
+    :param cwd: The driver's working directory (relative paths in ``train_args`` are relative to it)
+    """
+    if os.path.isdir(cwd):
+        os.chdir(cwd)
+    # Decided here, not when planning: a retry after a crash continues from the newest checkpoint.
+    resume = read_checkpoint(job.run_dir) is not None
+    argv = ["--algo", job.algo, "--env", job.env_id, "--seed", str(job.seed), "-f", str(job.folder), *train_args]
+    if resume:
+        argv.append("--resume")
+    manager = functools.partial(SGFDExperimentManager, run_id=job.run_id)
+    job.log_file.parent.mkdir(parents=True, exist_ok=True)
+    with _output_to(job.log_file):
+        what = "resuming from its checkpoint" if resume else "new run"
+        print(f"=== sgfd-zoo sweep, {time.strftime('%Y-%m-%d %H:%M:%S')}: {job} in {job.run_dir} ({what})", flush=True)
+        try:
+            # cli.train builds the ExperimentManager it hands rl-zoo3 from this name; the worker process
+            # runs this one task only (max_calls=1), so the swap cannot leak into another run.
+            with cli._replaced(cli, "SGFDExperimentManager", manager):
+                cli.train(argv)
+        except SystemExit as error:
+            # argparse exits on bad flags; a SystemExit would end the Ray worker (a "crash" Ray retries).
+            sys.stderr.flush()
+            raise RuntimeError(f"sgfd-zoo train exited with status {error.code}: {_last_line(job.log_file)}") from None
+        except BaseException:
+            traceback.print_exc()
+            raise
+    model = job.run_dir / f"{EnvironmentName(job.env_id)}.zip"
+    if not model.exists():
+        raise RuntimeError(f"sgfd-zoo train ended without saving {model}")
+    return resume
+
+
+@contextlib.contextmanager
+def _output_to(path: Path) -> Iterator[None]:
+    """Send this process's stdout and stderr (file descriptors, so C libraries' output too) to ``path``."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    log = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    try:
+        os.dup2(log, 1)
+        os.dup2(log, 2)
+        yield
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (log, *saved):
+            os.close(fd)
+
+
+def _last_line(path: Path, tail: int = 4096) -> str:
+    with path.open("rb") as handle:
+        handle.seek(max(path.stat().st_size - tail, 0))
+        lines = [line.strip() for line in handle.read().decode(errors="replace").splitlines()]
+    return next((line for line in reversed(lines) if line), "")
+
+
+# -- the command ------------------------------------------------------------------------------------
+
+
+def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
+    """The sweep's options, checked, and the flags left for ``sgfd-zoo train``."""
+    parser = argparse.ArgumentParser(
+        prog="sgfd-zoo sweep",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        # An abbreviation such as --algo must reach the check below, not silently mean --algos.
+        allow_abbrev=False,
+        epilog="Every other option goes to each run's `sgfd-zoo train` (see sgfd-zoo train -h), e.g.\n"
+        "  sgfd-zoo sweep --algos sgfd_sac sac --envs SGFD/MT-walker-walk-v0 --seeds 0 1 2 --quick -n 20000",
+    )
+    parser.add_argument("--algos", nargs="+", required=True, help=f"algorithm keys: {', '.join(SGFD_ALGOS)}")
+    parser.add_argument("--envs", nargs="+", required=True, help="SGFD env ids")
+    parser.add_argument("--seeds", nargs="+", type=int, required=True, help="training seeds (>= 0)")
+    parser.add_argument(
+        "-f", "--folder", "--log-folder", type=Path, default=Path("logs"), help="log folder (default: logs)"
+    )
+    parser.add_argument(
+        "--address",
+        help="an existing Ray cluster (host:port, or 'auto' for the one `ray start` started here); the log "
+        "folder must then be a path every node sees. Default: a Ray instance on this machine, for this sweep",
+    )
+    parser.add_argument("--num-cpus", type=int, help="CPUs of the local Ray instance (default: all)")
+    parser.add_argument("--cpus-per-run", type=float, default=1.0, help="CPUs Ray reserves for each run (default: 1)")
+    parser.add_argument(
+        "--gpus-per-run", type=float, default=0.0, help="GPUs for each run; fractions share one (default: 0)"
+    )
+    parser.add_argument(
+        "--max-retries",
+        type=int,
+        default=3,
+        help="restarts of a run whose worker process died (killed, out of memory, node lost); it continues "
+        "from its last checkpoint. Python errors are reported, not retried (default: 3)",
+    )
+    parser.add_argument("--n-episodes", type=int, default=10, help="evaluation episodes per split (default: 10)")
+    parser.add_argument("--no-evaluate", action="store_true", help="train only; no tables")
+    args, train_args = parser.parse_known_args(argv)
+
+    args.algos = _checked_names("--algos", args.algos, list(SGFD_ALGOS))
+    args.envs = _checked_names("--envs", args.envs, list(sgfd_envs.SGFD_IDS))
+    args.seeds = list(dict.fromkeys(args.seeds))
+    for seed in args.seeds:
+        if not 0 <= seed <= MAX_SEED:
+            raise ZooError(f"--seeds: {seed} is not in 0..{MAX_SEED}")
+    for flag, instead in SWEEP_OWNED_FLAGS.items():
+        if cli._has_flag(train_args, flag):
+            raise ZooError(f"{flag} is set per run by the sweep; use {instead}")
+    if args.cpus_per_run <= 0:
+        raise ZooError(f"--cpus-per-run must be > 0, got {args.cpus_per_run}")
+    if args.gpus_per_run < 0:
+        raise ZooError(f"--gpus-per-run must be >= 0, got {args.gpus_per_run}")
+    if args.max_retries < 0:
+        raise ZooError(f"--max-retries must be >= 0, got {args.max_retries}")
+    if args.n_episodes < 1:
+        raise ZooError(f"--n-episodes must be >= 1, got {args.n_episodes}")
+    if args.address is not None and args.num_cpus is not None:
+        raise ZooError("--num-cpus sizes the local Ray instance; a cluster given by --address has its own size")
+    if args.num_cpus is not None and args.num_cpus < 1:
+        raise ZooError(f"--num-cpus must be >= 1, got {args.num_cpus}")
+    local_cpus = args.num_cpus or os.cpu_count() or 1
+    if args.address is None and args.cpus_per_run > local_cpus:
+        raise ZooError(f"--cpus-per-run {args.cpus_per_run:g} is more than the {local_cpus} CPUs of the local instance")
+    if args.folder.exists() and not args.folder.is_dir():
+        raise ZooError(f"--folder {args.folder} is not a folder")
+    args.folder = args.folder.resolve()
+    # torch's threads per run follow the CPUs Ray reserves for it, unless the user says otherwise.
+    if not cli._has_flag(train_args, "--num-threads"):
+        train_args += ["--num-threads", str(max(math.floor(args.cpus_per_run), 1))]
+    return args, train_args
+
+
+def _checked_names(flag: str, values: list[str], known: list[str]) -> list[str]:
+    import difflib
+
+    for value in values:
+        if value not in known:
+            close = difflib.get_close_matches(value, known, n=1)
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            raise ZooError(f"{flag}: {value!r} is unknown{hint}; choose from {', '.join(known)}")
+    return list(dict.fromkeys(values))
+
+
+def main(argv: list[str]) -> int:
+    args, train_args = parse_args(argv)
+    jobs, done = plan(args.folder, args.algos, args.envs, args.seeds)
+    n_resume = sum(read_checkpoint(job.run_dir) is not None for job in jobs)
+    print(
+        f"sweep: {len(jobs) + len(done)} runs ({len(args.algos)} algos x {len(args.envs)} envs x {len(args.seeds)} "
+        f"seeds) in {args.folder}: {len(done)} finished already, {len(jobs)} to train ({n_resume} to resume)"
+    )
+    failures: list[tuple[Job, str]] = []
+    if jobs:
+        try:
+            failures = run_jobs(jobs, train_args, args)
+        except KeyboardInterrupt:
+            print("\nsweep: interrupted; the same command resumes it (unfinished runs from their checkpoints)")
+            return 130
+    if not args.no_evaluate:
+        _evaluate(args, train_args)
+    print(f"\nsweep: {len(jobs) - len(failures)} trained, {len(done)} already finished, {len(failures)} failed")
+    for job, error in failures:
+        print(f"  FAILED {job}: {error} (log: {job.log_file})")
+    return 1 if failures else 0
+
+
+def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -> list[tuple[Job, str]]:
+    """Run ``jobs`` as Ray tasks; returns the failed ones with a one-line reason. Ray is shut down after."""
+    import ray
+
+    _start_ray(args)
+    try:
+        task = ray.remote(
+            num_cpus=args.cpus_per_run,
+            num_gpus=args.gpus_per_run,
+            # A fresh process per run: rl-zoo3's train() sets process-wide state (torch threads, seeds,
+            # sys.argv, the algorithm table), and a long run's memory is given back when it ends.
+            max_calls=1,
+            max_retries=args.max_retries,
+            retry_exceptions=False,
+        )(train_job)
+        cwd = os.getcwd()
+        pending = {task.options(name=f"sweep {job}").remote(job, train_args, cwd): job for job in jobs}
+        failures = []
+        while pending:
+            [ref], _ = ray.wait(list(pending), num_returns=1)
+            job = pending.pop(ref)
+            count = f"[{len(jobs) - len(pending)}/{len(jobs)}]"
+            try:
+                resumed = ray.get(ref)
+            except ray.exceptions.RayError as error:
+                failures.append((job, _reason(error)))
+                print(f"{count} FAILED {job}: {failures[-1][1]} (log: {job.log_file})", flush=True)
+            else:
+                print(f"{count} finished {job}{' (resumed)' if resumed else ''}: {job.run_dir}", flush=True)
+        return failures
+    finally:
+        ray.shutdown()
+
+
+def _start_ray(args: argparse.Namespace) -> None:
+    import ray
+
+    quiet = {"log_to_driver": False, "logging_level": logging.WARNING}  # each run's output is in its log file
+    if args.address is not None:
+        _check_reachable(args.address)
+        try:
+            ray.init(address=args.address, **quiet)
+        except (ConnectionError, ValueError, RuntimeError) as error:
+            raise ZooError(f"--address {args.address}: no Ray cluster to connect to ({error})") from None
+        cpus, gpus = ray.cluster_resources().get("CPU", 0), ray.cluster_resources().get("GPU", 0)
+        print(f"sweep: Ray cluster at {args.address}: {cpus:g} CPUs, {gpus:g} GPUs")
+        return
+    # "local": a new instance even if `ray start` left one running on this machine.
+    ray.init(address="local", num_cpus=args.num_cpus, include_dashboard=False, **quiet)
+    cpus, gpus = ray.cluster_resources().get("CPU", 0), ray.cluster_resources().get("GPU", 0)
+    print(f"sweep: local Ray instance: {cpus:g} CPUs, {gpus:g} GPUs")
+    if args.gpus_per_run > gpus:
+        # Ray would wait forever for a GPU no node of this instance has.
+        ray.shutdown()
+        raise ZooError(f"--gpus-per-run {args.gpus_per_run:g}: Ray sees {gpus:g} GPUs on this machine")
+
+
+def _check_reachable(address: str, timeout: float = 10.0) -> None:
+    """
+    Refuse a host:port nothing listens on: Ray itself retries such an address for minutes (13 on our
+    machine) before it gives up. Other forms ('auto', 'ray://...') are left to Ray.
+
+    :param address: The --address value
+    :param timeout: Seconds to wait for a TCP connection
+    """
+    host, _, port = address.rpartition(":")
+    if "://" in address or not host or not port.isdigit():
+        return
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
+            pass
+    except OSError as error:
+        raise ZooError(f"--address {address}: no Ray cluster answers there ({error})") from None
+
+
+def _reason(error: Exception) -> str:
+    """One line for the summary: the run's own exception when it raised one, else what Ray says."""
+    cause = getattr(error, "cause", None)
+    if isinstance(cause, BaseException):
+        text, name = str(cause), type(cause).__name__
+    else:
+        text, name = str(error), type(error).__name__
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    return f"{name}: {lines[0] if lines else '(no message)'}"
+
+
+def _evaluate(args: argparse.Namespace, train_args: list[str]) -> None:
+    if not args.folder.is_dir() or not evaluate.find_runs(args.folder, args.algos, args.envs):
+        print("sweep: no finished run to evaluate")
+        return
+    import torch
+
+    # Evaluation is small-batch inference: more threads than the runs had only contend on a shared machine.
+    threads = _flag_value(train_args, "--num-threads")
+    if threads is not None and threads.isdigit() and int(threads) > 0:
+        torch.set_num_threads(int(threads))
+    evaluate.main(
+        ["-f", str(args.folder), "--algo", *args.algos, "--env", *args.envs, "--n-episodes", str(args.n_episodes)]
+    )
+
+
+def _flag_value(argv: Sequence[str], flag: str) -> str | None:
+    value = None
+    for i, arg in enumerate(argv):
+        if arg == flag and i + 1 < len(argv):
+            value = argv[i + 1]
+        elif arg.startswith(f"{flag}="):
+            value = arg.split("=", 1)[1]
+    return value
