@@ -81,6 +81,9 @@ def train(argv: list[str], optimize: bool = False) -> int:
     parser.add_argument("--quick", action="store_true", help="the quick configuration (zoo/hyperparams/quick)")
     parser.add_argument("--resume", action="store_true", help="continue the newest run from its last checkpoint")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--run-id", type=int, help="write to (and --resume) the run folder <EnvName>_<id>; default: newest id + 1"
+    )
     ours, rest = parser.parse_known_args(argv)
     if "-h" in rest or "--help" in rest:
         parser.print_help()
@@ -97,7 +100,11 @@ def train(argv: list[str], optimize: bool = False) -> int:
 
     register_algorithms()
     manager = functools.partial(
-        SGFDExperimentManager, quick=ours.quick, resume=ours.resume, progress=False if ours.no_progress else None
+        SGFDExperimentManager,
+        quick=ours.quick,
+        resume=ours.resume,
+        progress=False if ours.no_progress else None,
+        run_id=ours.run_id,
     )
     with _replaced(rl_zoo3.train, "ExperimentManager", manager), _argv(parser.prog, rest):
         rl_zoo3.train.train()

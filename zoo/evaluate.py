@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch as th
 import yaml
 from huggingface_sb3 import EnvironmentName
 from pytablewriter import MarkdownTableWriter
@@ -161,11 +162,17 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--env", nargs="+", help="only these env ids")
     parser.add_argument("--n-episodes", type=int, default=10, help="episodes per split (spread over its domains)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation envs")
+    parser.add_argument(
+        "--num-threads", type=int, default=1, help="torch threads (small-batch inference: more only contend)"
+    )
     args = parser.parse_args(argv)
     if not args.folder.is_dir():
         raise ZooError(f"--folder {args.folder} does not exist (train first: sgfd-zoo train -f {args.folder} ...)")
     if args.n_episodes < 1:
         raise ZooError(f"--n-episodes must be >= 1, got {args.n_episodes}")
+    if args.num_threads < 1:
+        raise ZooError(f"--num-threads must be >= 1, got {args.num_threads}")
+    th.set_num_threads(args.num_threads)
     for env_id in args.env or []:
         if env_id not in sgfd_envs.SGFD_IDS:
             raise ZooError(f"--env {env_id!r} is not an SGFD id; choose from {', '.join(sgfd_envs.SGFD_IDS)}")

@@ -90,7 +90,6 @@ class SGFDExperimentManager(ExperimentManager):
         self.run_id = run_id
         self.resume = resume
         self.checkpoint: dict | None = None
-        self.algo_kwargs: dict[str, Any] = {}
         if resume:
             self._point_at_run_to_resume()
 

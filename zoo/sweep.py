@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import functools
 import logging
 import math
 import os
@@ -31,7 +30,7 @@ import sgfd_envs  # before anything imports dm_control: it picks MuJoCo's headle
 from zoo import cli, evaluate
 from zoo.algos import SGFD_ALGOS
 from zoo.callbacks import read_checkpoint
-from zoo.experiment import SGFDExperimentManager, ZooError
+from zoo.experiment import ZooError
 
 # Train flags the sweep sets per run itself, and what to use instead.
 SWEEP_OWNED_FLAGS = {
@@ -177,19 +176,16 @@ def train_job(job: Job, train_args: list[str], cwd: str) -> bool:
         os.chdir(cwd)
     # Decided here, not when planning: a retry after a crash continues from the newest checkpoint.
     resume = read_checkpoint(job.run_dir) is not None
-    argv = ["--algo", job.algo, "--env", job.env_id, "--seed", str(job.seed), "-f", str(job.folder), *train_args]
+    argv = ["--algo", job.algo, "--env", job.env_id, "--seed", str(job.seed), "-f", str(job.folder)]
+    argv += ["--run-id", str(job.run_id), *train_args]
     if resume:
         argv.append("--resume")
-    manager = functools.partial(SGFDExperimentManager, run_id=job.run_id)
     job.log_file.parent.mkdir(parents=True, exist_ok=True)
     with _output_to(job.log_file):
         what = "resuming from its checkpoint" if resume else "new run"
         print(f"=== sgfd-zoo sweep, {time.strftime('%Y-%m-%d %H:%M:%S')}: {job} in {job.run_dir} ({what})", flush=True)
         try:
-            # cli.train builds the ExperimentManager it hands rl-zoo3 from this name; the worker process
-            # runs this one task only (max_calls=1), so the swap cannot leak into another run.
-            with cli._replaced(cli, "SGFDExperimentManager", manager):
-                cli.train(argv)
+            cli.train(argv)
         except SystemExit as error:
             # argparse exits on bad flags; a SystemExit would end the Ray worker (a "crash" Ray retries).
             sys.stderr.flush()
@@ -428,15 +424,10 @@ def _evaluate(args: argparse.Namespace, train_args: list[str]) -> None:
     if not args.folder.is_dir() or not evaluate.find_runs(args.folder, args.algos, args.envs):
         print("sweep: no finished run to evaluate")
         return
-    import torch
-
-    # Evaluation is small-batch inference: more threads than the runs had only contend on a shared machine.
-    threads = _flag_value(train_args, "--num-threads")
-    if threads is not None and threads.isdigit() and int(threads) > 0:
-        torch.set_num_threads(int(threads))
-    evaluate.main(
-        ["-f", str(args.folder), "--algo", *args.algos, "--env", *args.envs, "--n-episodes", str(args.n_episodes)]
-    )
+    # Evaluation is small-batch inference: as many threads as each run had.
+    threads = _flag_value(train_args, "--num-threads") or "1"
+    evaluate_args = ["-f", str(args.folder), "--algo", *args.algos, "--env", *args.envs]
+    evaluate.main([*evaluate_args, "--n-episodes", str(args.n_episodes), "--num-threads", threads])
 
 
 def _flag_value(argv: Sequence[str], flag: str) -> str | None:
