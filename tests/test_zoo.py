@@ -216,3 +216,18 @@ def test_optimize_shares_a_study_through_a_journal_file(tmp_path):
     assert len(complete) == 2
     assert {"n_rff", "reweight_lr", "saliency_temperature", "accuracy_threshold"} <= set(complete[0].params)
     assert list((tmp_path / "logs" / "sgfd_sac").glob("report_*.csv"))
+
+
+@pytest.mark.slow
+def test_the_quick_main_job_trains_both_evaluates_and_plots(tmp_path):
+    result = zoo("quick", "-f", str(tmp_path), "-n", "600", "--eval-episodes", "1")
+    assert "sweep: 2 trained, 0 already finished, 0 failed" in result.stdout
+    rows = read_results(tmp_path / "results.csv")
+    assert {(row["algo"], row["split"]) for row in rows} == {
+        (algo, split) for algo in ("sgfd_sac", "sac") for split in ("train", "interpolation", "extrapolation")
+    }
+    assert (tmp_path / "results.md").read_text() in result.stdout
+    assert (tmp_path / "plots" / f"{RUN_NAME}.png").exists()
+    # A second call keeps what is finished.
+    again = zoo("quick", "-f", str(tmp_path), "-n", "600", "--eval-episodes", "1")
+    assert "0 trained, 2 already finished" in again.stdout
