@@ -29,10 +29,11 @@ def test_import_defaults_mujoco_gl_to_egl_and_respects_the_users_choice(preset, 
     if preset is not None:
         environment["MUJOCO_GL"] = preset
     # Importing is enough: dm_control loads the backend then (GLFW imports fine, it fails only at rendering).
-    code = ("import sys, os, sgfd_envs; assert 'dm_control._render' in sys.modules; "
-            "from dm_control import _render; print(os.environ['MUJOCO_GL'], _render.BACKEND)")
-    result = subprocess.run([sys.executable, "-c", code], env=environment, capture_output=True, text=True,
-                            check=False)
+    code = (
+        "import sys, os, sgfd_envs; assert 'dm_control._render' in sys.modules; "
+        "from dm_control import _render; print(os.environ['MUJOCO_GL'], _render.BACKEND)"
+    )
+    result = subprocess.run([sys.executable, "-c", code], env=environment, capture_output=True, text=True, check=False)
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == [expected, expected]
 
@@ -40,8 +41,9 @@ def test_import_defaults_mujoco_gl_to_egl_and_respects_the_users_choice(preset, 
 def test_importing_dm_control_first_warns():
     environment = {key: value for key, value in os.environ.items() if key != "MUJOCO_GL"}
     code = "import dm_control.suite, sgfd_envs"
-    result = subprocess.run([sys.executable, "-W", "always", "-c", code], env=environment, capture_output=True,
-                            text=True, check=False)
+    result = subprocess.run(
+        [sys.executable, "-W", "always", "-c", code], env=environment, capture_output=True, text=True, check=False
+    )
     assert "Import sgfd_envs first or set MUJOCO_GL=egl" in result.stderr
 
 
@@ -177,13 +179,17 @@ def test_splits_and_domain_counts():
     assert sgfd_envs.test_splits("SGFD/MT-finger-spin-v0") == ("interpolation", "extrapolation")
     assert sgfd_envs.n_domains("SGFD/walker-walk-v0") == 4
     assert sgfd_envs.n_domains("SGFD/walker-walk-v0", "test") == 4
-    assert [sgfd_envs.n_domains("SGFD/MT-cheetah-run-v0", s) for s in ("train", "interpolation", "extrapolation")] \
-        == [4, 1, 1]
+    assert [sgfd_envs.n_domains("SGFD/MT-cheetah-run-v0", s) for s in ("train", "interpolation", "extrapolation")] == [
+        4,
+        1,
+        1,
+    ]
     assert sgfd_envs.n_domains("SGFD/MT-cheetah-run-v0", split_settings={"train": (1, 2, 3)}) == 3
 
 
-@pytest.mark.parametrize("helper", [sgfd_envs.splits, sgfd_envs.test_splits, sgfd_envs.n_domains,
-                                    sgfd_envs.make_domain_vec_env])
+@pytest.mark.parametrize(
+    "helper", [sgfd_envs.splits, sgfd_envs.test_splits, sgfd_envs.n_domains, sgfd_envs.make_domain_vec_env]
+)
 def test_helpers_reject_unknown_ids_listing_the_known_ones(helper):
     with pytest.raises(ValueError, match=r"env_id must be one of .*SGFD/MT-walker-walk-v0.*'walker-walk'"):
         helper("walker-walk")
@@ -205,8 +211,7 @@ def test_make_domain_vec_env_gives_one_monitored_sub_env_per_domain():
 
 def test_make_domain_vec_env_seeds_sub_env_i_with_seed_plus_i():
     def first_observations(seed):
-        venv = sgfd_envs.make_domain_vec_env("SGFD/finger-spin-v0", split="test", n_envs=6, seed=seed,
-                                             obs_type="state")
+        venv = sgfd_envs.make_domain_vec_env("SGFD/finger-spin-v0", split="test", n_envs=6, seed=seed, obs_type="state")
         try:
             observations = venv.reset()
             return observations, [env.unwrapped.domain for env in venv.envs], venv.envs[1].action_space.sample()
@@ -226,8 +231,9 @@ def test_make_domain_vec_env_seeds_sub_env_i_with_seed_plus_i():
 
 
 def test_make_domain_vec_env_works_with_subprocesses():
-    venv = sgfd_envs.make_domain_vec_env("SGFD/cheetah-run-v0", split="test", n_envs=2, vec_env_cls=SubprocVecEnv,
-                                         image_size=32)
+    venv = sgfd_envs.make_domain_vec_env(
+        "SGFD/cheetah-run-v0", split="test", n_envs=2, vec_env_cls=SubprocVecEnv, image_size=32
+    )
     try:
         observations = venv.reset()
         assert observations.shape == (2, 32, 32, 3)
@@ -246,33 +252,39 @@ def test_make_domain_vec_env_rejects_bad_arguments():
         sgfd_envs.make_domain_vec_env("SGFD/walker-walk-v0", domain=1)
 
 
-@pytest.mark.parametrize(("kwargs", "message"), [
-    ({"split": "val"}, r"split must be one of \('train', 'test'\)"),
-    ({"domain": 4}, r"domain must be an int in 0..3 for split 'train', got 4"),
-    ({"domain": -1}, r"domain must be an int in 0..3"),
-    ({"split": "test", "domain": 1.0}, r"domain must be an int in 0..3 for split 'test'"),
-    ({"obs_type": "rgb"}, r"obs_type must be one of \('pixels', 'state'\)"),
-    ({"image_size": 0}, r"image_size must be a positive int"),
-    ({"image_size": 32.5}, r"image_size must be a positive int, got 32.5"),
-    ({"frame_budget": 0}, r"frame_budget must be a positive int"),
-])
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"split": "val"}, r"split must be one of \('train', 'test'\)"),
+        ({"domain": 4}, r"domain must be an int in 0..3 for split 'train', got 4"),
+        ({"domain": -1}, r"domain must be an int in 0..3"),
+        ({"split": "test", "domain": 1.0}, r"domain must be an int in 0..3 for split 'test'"),
+        ({"obs_type": "rgb"}, r"obs_type must be one of \('pixels', 'state'\)"),
+        ({"image_size": 0}, r"image_size must be a positive int"),
+        ({"image_size": 32.5}, r"image_size must be a positive int, got 32.5"),
+        ({"frame_budget": 0}, r"frame_budget must be a positive int"),
+    ],
+)
 def test_background_ids_reject_bad_arguments(kwargs, message):
     with pytest.raises(ValueError, match=message):
         gym.make("SGFD/walker-walk-v0", **kwargs)
 
 
-@pytest.mark.parametrize(("kwargs", "message"), [
-    ({"split": "test"}, r"split must be one of \('train', 'interpolation', 'extrapolation'\)"),
-    ({"split": "extrapolation", "domain": 1}, r"domain must be an int in 0..0 for split 'extrapolation'"),
-    ({"setting": 0}, r"setting must be an int in 1..10, got 0"),
-    ({"setting": 11}, r"setting must be an int in 1..10, got 11"),
-    ({"setting": "3"}, r"setting must be an int in 1..10, got '3'"),
-    ({"setting": 3, "split": "train"}, r"either setting= or split=/domain="),
-    ({"split_settings": {"test": (1,)}}, r"split_settings: unknown split 'test'"),
-    ({"split_settings": {"train": ()}}, r"split_settings\['train'\] must be a non-empty sequence"),
-    ({"split_settings": {"train": (1, 12)}}, r"setting must be an int in 1..10, got 12"),
-    ({"split_settings": {"train": (1, 1)}}, r"repeats a setting"),
-])
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"split": "test"}, r"split must be one of \('train', 'interpolation', 'extrapolation'\)"),
+        ({"split": "extrapolation", "domain": 1}, r"domain must be an int in 0..0 for split 'extrapolation'"),
+        ({"setting": 0}, r"setting must be an int in 1..10, got 0"),
+        ({"setting": 11}, r"setting must be an int in 1..10, got 11"),
+        ({"setting": "3"}, r"setting must be an int in 1..10, got '3'"),
+        ({"setting": 3, "split": "train"}, r"either setting= or split=/domain="),
+        ({"split_settings": {"test": (1,)}}, r"split_settings: unknown split 'test'"),
+        ({"split_settings": {"train": ()}}, r"split_settings\['train'\] must be a non-empty sequence"),
+        ({"split_settings": {"train": (1, 12)}}, r"setting must be an int in 1..10, got 12"),
+        ({"split_settings": {"train": (1, 1)}}, r"repeats a setting"),
+    ],
+)
 def test_mt_ids_reject_bad_arguments(kwargs, message):
     with pytest.raises(ValueError, match=message):
         gym.make("SGFD/MT-walker-walk-v0", **kwargs)

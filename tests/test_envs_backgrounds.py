@@ -32,8 +32,11 @@ def plane_pixels(physics, segmentation):
 
 def start_index(source, observation, background_mask):
     """The frame index of ``source`` shown behind the robot in ``observation``."""
-    matches = [t for t in range(source.n_frames)
-               if np.array_equal(source.frame(t)[background_mask], observation[background_mask])]
+    matches = [
+        t
+        for t in range(source.n_frames)
+        if np.array_equal(source.frame(t)[background_mask], observation[background_mask])
+    ]
     assert len(matches) == 1, matches
     return matches[0]
 
@@ -121,13 +124,15 @@ def test_procedural_sources_are_deterministic_moving_and_looping():
 
 def test_every_domain_has_its_own_background_and_test_backgrounds_are_unseen():
     assert set(PROCEDURAL_SEEDS["train"]).isdisjoint(PROCEDURAL_SEEDS["test"])
-    sources = {(split, domain): make_background(split, domain, 32, 32)
-               for split in ("train", "test") for domain in range(4)}
-    samples = {key: np.stack([source.frame(t) for t in range(0, 1000, 50)]).astype(np.int64)
-               for key, source in sources.items()}
+    sources = {
+        (split, domain): make_background(split, domain, 32, 32) for split in ("train", "test") for domain in range(4)
+    }
+    samples = {
+        key: np.stack([source.frame(t) for t in range(0, 1000, 50)]).astype(np.int64) for key, source in sources.items()
+    }
     keys = list(samples)
     for i, first in enumerate(keys):
-        for second in keys[i + 1:]:
+        for second in keys[i + 1 :]:
             # No frame of one source appears in another, and on average they differ clearly.
             assert np.abs(samples[first] - samples[second]).mean() > 10, (first, second)
             assert not any(np.array_equal(a, b) for a in samples[first] for b in samples[second])
@@ -153,7 +158,7 @@ def write_video(path: Path, n_frames: int, tint: int, size=(64, 48)) -> None:
     for t in range(n_frames):
         frame = np.zeros((height, width, 3), dtype=np.uint8)
         frame[...] = (40 * tint % 256, 255 - 30 * tint % 256, 100)
-        frame[:, (4 * t) % width: (4 * t) % width + 8] = (255, 255, 255)
+        frame[:, (4 * t) % width : (4 * t) % width + 8] = (255, 255, 255)
         writer.write(frame)
     writer.release()
 

@@ -43,10 +43,17 @@ def test_settings_table():
         assert morphology.scale(3) == 1.0
 
 
-@pytest.mark.parametrize(("split", "domain", "setting"), [
-    ("train", 0, 1), ("train", 1, 2), ("train", 2, 4), ("train", 3, 5), ("interpolation", 0, 3),
-    ("extrapolation", 0, 10),
-])
+@pytest.mark.parametrize(
+    ("split", "domain", "setting"),
+    [
+        ("train", 0, 1),
+        ("train", 1, 2),
+        ("train", 2, 4),
+        ("train", 3, 5),
+        ("interpolation", 0, 3),
+        ("extrapolation", 0, 10),
+    ],
+)
 def test_split_and_domain_pick_the_setting_and_label_the_env(split, domain, setting):
     with gym.make("SGFD/MT-finger-turn-v0", split=split, domain=domain, obs_type="state") as env:
         _, info = env.reset(seed=0)
@@ -66,8 +73,9 @@ def test_setting_kwarg_and_split_override():
         assert env.reset(seed=0)[1] == {"domain": 0, "setting": 7}
     with gym.make("SGFD/MT-cheetah-run-v0", domain=2, split_settings={"train": (6, 7, 8)}, obs_type="state") as env:
         assert (env.unwrapped.setting, env.unwrapped.n_domains) == (8, 3)
-    with gym.make("SGFD/MT-cheetah-run-v0", split="extrapolation", split_settings={"train": (6, 7, 8)},
-                  obs_type="state") as env:
+    with gym.make(
+        "SGFD/MT-cheetah-run-v0", split="extrapolation", split_settings={"train": (6, 7, 8)}, obs_type="state"
+    ) as env:
         assert env.unwrapped.setting == 10  # splits left out of split_settings keep their defaults
 
 
@@ -111,8 +119,7 @@ def test_every_setting_changes_mass_inertia_kinematics_and_dynamics(robot):
 def test_every_setting_changes_what_the_camera_sees(robot):
     frames = []
     for setting in SETTINGS:
-        with gym.make(MT_ID[robot], setting=setting, obs_type="state", render_mode="rgb_array",
-                      image_size=48) as env:
+        with gym.make(MT_ID[robot], setting=setting, obs_type="state", render_mode="rgb_array", image_size=48) as env:
             env.reset(seed=0)
             physics = env.unwrapped.physics
             with physics.reset_context():
@@ -147,8 +154,10 @@ def test_walker_standing_pose_touches_the_floor_and_earns_the_stand_height(setti
     physics = env.physics
     with physics.reset_context():
         physics.data.qpos[:] = 0  # joints straight at the torso's initial height
-    foot_bottoms = [physics.named.data.geom_xpos[foot, "z"] - physics.named.model.geom_size[foot, 0]
-                    for foot in ("right_foot", "left_foot")]
+    foot_bottoms = [
+        physics.named.data.geom_xpos[foot, "z"] - physics.named.model.geom_size[foot, 0]
+        for foot in ("right_foot", "left_foot")
+    ]
     assert foot_bottoms == pytest.approx([0.0, 0.0], abs=1e-9)
     # Same 0.1 m slack below the standing torso height as dm_control's 1.3 m walker with its 1.2 threshold.
     assert physics.torso_height() - walker.stand_height(walker_scale) == pytest.approx(0.1)
@@ -171,8 +180,9 @@ def fingertip_reaches_spinner(physics, hinge_angle):
     fingertip = physics.model.name2id("fingertip", "geom")
     spinner_caps = {physics.model.name2id(name, "geom") for name in ("cap1", "cap2")}
     (proximal_low, proximal_high), (distal_low, distal_high) = physics.named.model.jnt_range[["proximal", "distal"]]
-    for proximal, distal in itertools.product(np.linspace(proximal_low, proximal_high, 41),
-                                              np.linspace(distal_low, distal_high, 41)):
+    for proximal, distal in itertools.product(
+        np.linspace(proximal_low, proximal_high, 41), np.linspace(distal_low, distal_high, 41)
+    ):
         with physics.reset_context():
             physics.named.data.qpos[["proximal", "distal", "hinge"]] = proximal, distal, hinge_angle
         pairs = zip(physics.data.contact.geom1, physics.data.contact.geom2, strict=True)
@@ -202,7 +212,10 @@ def test_cheetah_lands_on_its_feet_on_the_ground_after_reset(setting):
     physics = env.physics
     ground = physics.model.name2id("ground", "geom")
     contacts = physics.data.contact
-    touching = {physics.model.id2name(int(b if a == ground else a), "geom")
-                for a, b in zip(contacts.geom1, contacts.geom2, strict=True) if ground in (a, b)}
+    touching = {
+        physics.model.id2name(int(b if a == ground else a), "geom")
+        for a, b in zip(contacts.geom1, contacts.geom2, strict=True)
+        if ground in (a, b)
+    }
     assert touching, "the cheetah floats"
     assert physics.named.data.xpos["torso", "z"] > 0
