@@ -45,32 +45,33 @@ def make_run(folder: Path, algo: str, run_id: int, seed: int, finished: bool = F
 
 
 def test_plan_skips_finished_runs_resumes_checkpoints_and_never_shares_a_folder(tmp_path: Path) -> None:
-    make_run(tmp_path, "sgfd_sac", 3, seed=0, finished=True)  # seed 0 done by `sgfd-zoo train`
-    make_run(tmp_path, "sgfd_sac", 1, seed=1, checkpoint=200)
-    make_run(tmp_path, "sgfd_sac", 5, seed=1, checkpoint=600)  # the furthest checkpoint of seed 1
-    make_run(tmp_path, "sgfd_sac", 2, seed=9)  # another seed's run sits in seed 2's folder
-    make_run(tmp_path, "sgfd_sac", 4, seed=7)  # ... and in seed 4's
+    # A sweep gives seed s the folder <EnvName>_<s + 1> (rl-zoo3 numbers runs from 1) when it is free.
+    make_run(tmp_path, "sgfd_sac", 4, seed=0, finished=True)  # seed 0 done by `sgfd-zoo train`
+    make_run(tmp_path, "sgfd_sac", 2, seed=1, checkpoint=200)
+    make_run(tmp_path, "sgfd_sac", 6, seed=1, checkpoint=600)  # the furthest checkpoint of seed 1
+    make_run(tmp_path, "sgfd_sac", 3, seed=9)  # another seed's run sits in seed 2's folder
+    make_run(tmp_path, "sgfd_sac", 5, seed=7)  # ... and in seed 4's
 
     jobs, done = sweep.plan(tmp_path, ["sgfd_sac", "sac"], [ENV], [0, 1, 2, 4])
 
     assert done == [("sgfd_sac", ENV, 0)]
     ids = {(job.algo, job.seed): job.run_id for job in jobs}
     assert ids == {
-        ("sac", 0): 0,
-        ("sgfd_sac", 1): 5,
-        ("sac", 1): 1,
-        ("sgfd_sac", 2): 6,
-        ("sac", 2): 2,
-        ("sgfd_sac", 4): 7,
-        ("sac", 4): 4,
+        ("sac", 0): 1,
+        ("sgfd_sac", 1): 6,
+        ("sac", 1): 2,
+        ("sgfd_sac", 2): 7,
+        ("sac", 2): 3,
+        ("sgfd_sac", 4): 8,
+        ("sac", 4): 5,
     }
     assert [job.seed for job in jobs] == [0, 1, 1, 2, 2, 4, 4]  # seed by seed: whole tables fill up first
-    assert jobs[1].run_dir == tmp_path / "sgfd_sac" / f"{NAME}_5"
+    assert jobs[1].run_dir == tmp_path / "sgfd_sac" / f"{NAME}_6"
 
     # Seed 2 started in its new folder and crashed before a checkpoint: the next sweep restarts it there.
-    make_run(tmp_path, "sgfd_sac", 6, seed=2)
+    make_run(tmp_path, "sgfd_sac", 7, seed=2)
     again = {(job.algo, job.seed): job.run_id for job in sweep.plan(tmp_path, ["sgfd_sac"], [ENV], [2, 4])[0]}
-    assert again == {("sgfd_sac", 2): 6, ("sgfd_sac", 4): 7}
+    assert again == {("sgfd_sac", 2): 7, ("sgfd_sac", 4): 8}
 
 
 def _free_port() -> int:
@@ -135,8 +136,8 @@ def test_sweep_trains_each_seed_into_its_own_folder_reports_failures_and_evaluat
     assert code == 1, out
     runs = sorted(find_runs(folder), key=lambda run: run.seed)
     assert [(run.algo, run.seed, run.path.name) for run in runs] == [
-        ("sgfd_sac", 0, f"{NAME}_0"),
-        ("sgfd_sac", 1, f"{NAME}_1"),
+        ("sgfd_sac", 0, f"{NAME}_1"),
+        ("sgfd_sac", 1, f"{NAME}_2"),
     ]
     for run in runs:
         log = run.path.with_name(f"{run.path.name}.log").read_text()
@@ -145,11 +146,11 @@ def test_sweep_trains_each_seed_into_its_own_folder_reports_failures_and_evaluat
     summary = out.rsplit("\nsweep: ", 1)[1]
     assert summary.startswith("2 trained, 0 already finished, 2 failed")
     for seed in (0, 1):
-        log = folder / "sac" / f"{NAME}_{seed}.log"
+        log = folder / "sac" / f"{NAME}_{seed + 1}.log"
         assert f"FAILED sac on {ENV} seed {seed}: ZooError: unknown hyperparameter(s) for sac: 'n_rff'" in summary
         assert f"(log: {log})" in summary
         assert "Traceback" in log.read_text()
-    assert not (folder / "sac" / f"{NAME}_0").exists()
+    assert not (folder / "sac" / f"{NAME}_1").exists()
     # The tables cover what finished.
     with (folder / "results.csv").open() as handle:
         rows = list(csv.DictReader(handle))
@@ -176,9 +177,9 @@ def test_sweep_on_an_existing_cluster_skips_finished_runs_and_resumes_a_crashed_
     folder = tmp_path / "logs"
     shutil.copytree(first_sweep[0], folder)
     # Seed 0 "crashed" after its last checkpoint (600 steps): no final model. Seed 1 is finished.
-    crashed = folder / "sgfd_sac" / f"{NAME}_0"
+    crashed = folder / "sgfd_sac" / f"{NAME}_1"
     (crashed / f"{NAME}.zip").unlink()
-    finished_model = folder / "sgfd_sac" / f"{NAME}_1" / f"{NAME}.zip"
+    finished_model = folder / "sgfd_sac" / f"{NAME}_2" / f"{NAME}.zip"
     finished_mtime = finished_model.stat().st_mtime_ns
 
     argv = ["sweep", "--algos", "sgfd_sac", "--envs", ENV, "--seeds", "0", "1", "-f", str(folder)]
@@ -198,6 +199,6 @@ def test_sweep_on_an_existing_cluster_skips_finished_runs_and_resumes_a_crashed_
     assert (crashed / "progress_from_600.csv").exists()
     assert json.loads((crashed / CHECKPOINT_INDEX).read_text())["num_timesteps"] == 900
     assert (crashed / f"{NAME}.zip").exists()
-    assert sorted(path.name for path in (folder / "sgfd_sac").iterdir() if path.is_dir()) == [f"{NAME}_0", f"{NAME}_1"]
-    log = (folder / "sgfd_sac" / f"{NAME}_0.log").read_text()
+    assert sorted(path.name for path in (folder / "sgfd_sac").iterdir() if path.is_dir()) == [f"{NAME}_1", f"{NAME}_2"]
+    log = (folder / "sgfd_sac" / f"{NAME}_1.log").read_text()
     assert "(new run)" in log and "(resuming from its checkpoint)" in log  # appended, the first attempt kept

@@ -231,3 +231,19 @@ def test_the_quick_main_job_trains_both_evaluates_and_plots(tmp_path):
     # A second call keeps what is finished.
     again = zoo("quick", "-f", str(tmp_path), "-n", "600", "--eval-episodes", "1")
     assert "0 trained, 2 already finished" in again.stdout
+    # The sweep numbers runs from 1 as rl-zoo3 does, so enjoy's default (newest run) finds the agent.
+    watched = zoo(
+        "enjoy",
+        "--algo",
+        "sgfd_sac",
+        "--env",
+        "SGFD/MT-walker-walk-v0",
+        "-f",
+        str(tmp_path),
+        "-n",
+        "200",
+        "--no-render",
+        "--env-kwargs",
+        "split:'extrapolation'",
+    )
+    assert "Loading" in watched.stdout and "sgfd_sac/SGFD-MT-walker-walk-v0_1" in watched.stdout

@@ -103,7 +103,7 @@ def plan(
                     done.append((algo, env_id, seed))
                     continue
                 taken = assigned.setdefault((algo, env_id), set())
-                run_id = choose_run_id(folder / algo, env_id, seed, [*seeds, *taken])
+                run_id = choose_run_id(folder / algo, env_id, seed, [*(s + 1 for s in seeds), *taken])
                 taken.add(run_id)
                 jobs.append(Job(algo, env_id, seed, run_id, folder))
     return jobs, done
@@ -116,9 +116,10 @@ def choose_run_id(algo_dir: Path, env_id: str, seed: int, reserved: Sequence[int
 
     1. the unfinished run of this seed with the furthest checkpoint (it will be resumed);
     2. an unfinished run of this seed without a checkpoint (restarted there, so that failed attempts do
-       not pile up as folders; it has no model to lose), the one with id ``seed`` first;
-    3. the seed itself, unless that folder holds another seed's run (from ``sgfd-zoo train``, say);
-    4. one more than any id in the folder and any of ``reserved`` (the sweep's seeds, ids already given).
+       not pile up as folders; it has no model to lose), the one with id ``seed + 1`` first;
+    3. ``seed + 1`` (rl-zoo3 numbers runs from 1; ``enjoy --exp-id 0`` means the newest), unless that
+       folder holds another seed's run (from ``sgfd-zoo train``, say);
+    4. one more than any id in the folder and any of ``reserved`` (the sweep's ids, ids already given).
 
     :param algo_dir: ``<log folder>/<algo>``
     :param env_id: SGFD env id
@@ -131,11 +132,12 @@ def choose_run_id(algo_dir: Path, env_id: str, seed: int, reserved: Sequence[int
     resumable = [(checkpoint["num_timesteps"], run_id) for run_id, checkpoint in checkpoints.items() if checkpoint]
     if resumable:
         return max(resumable)[1]
+    preferred = seed + 1
     if mine:
-        return seed if seed in mine else max(mine)
-    if seed not in existing or existing[seed][1] is None:
-        return seed
-    return max([*existing, *reserved, seed]) + 1
+        return preferred if preferred in mine else max(mine)
+    if preferred not in existing or existing[preferred][1] is None:
+        return preferred
+    return max([*existing, *reserved, preferred]) + 1
 
 
 def run_seeds(algo_dir: Path, env_name: str) -> dict[int, tuple[Path, int | None]]:
