@@ -349,26 +349,8 @@ class SGFD_SAC(SAC):
         if not self.classifier_ready or not (self.reweight_critic or self.reweight_actor):
             return ones
 
-        feature_probs = None
-        if self.use_saliency:
-            feature_probs = feature_probabilities(
-                self.classifier, z, temperature=self.saliency_temperature, smoothing=self.saliency_smoothing
-            )
-            self._record("top_saliency_feature", float(feature_probs.argmax()))
         self._rff_generator.manual_seed(self.rff_seed + update_index)
-        weights, loss_before, loss_after = learn_sample_weights(
-            z,
-            feature_probs,
-            n_rff=self.n_rff,
-            iters=self.reweight_iters,
-            lr=self.reweight_lr,
-            momentum=self.reweight_momentum,
-            weight_decay=self.reweight_weight_decay,
-            ess_penalty=self.reweight_ess_penalty,
-            use_rff=self.use_rff,
-            generator=self._rff_generator,
-            return_losses=True,
-        )
+        weights, loss_before, loss_after = self.sample_weights(z, self._rff_generator, record=True)
         if not th.isfinite(weights).all():
             raise RuntimeError(
                 f"SGFD_SAC: the weight solver returned non-finite sample weights at update {update_index} "
@@ -380,6 +362,39 @@ class SGFD_SAC(SAC):
         self._record("decorrelation_loss_before", loss_before)
         self._record("decorrelation_loss_after", loss_after)
         return weights.reshape(-1, 1)
+
+    def sample_weights(
+        self, z: th.Tensor, generator: th.Generator | None = None, record: bool = False
+    ) -> tuple[th.Tensor, float, float]:
+        """
+        Algorithm 1, lines 12-17 for features ``z``: the classifier's feature probabilities (uniform in the
+        no-saliency ablation), then the weights that minimise the weighted decorrelation loss.
+
+        :param z: (n, d) encoder features
+        :param generator: seeds the random Fourier features
+        :param record: log the most salient feature
+        :return: weights (n,) with mean 1, the decorrelation loss at uniform weights and at the weights
+        """
+        feature_probs = None
+        if self.use_saliency:
+            feature_probs = feature_probabilities(
+                self.classifier, z, temperature=self.saliency_temperature, smoothing=self.saliency_smoothing
+            )
+            if record:
+                self._record("top_saliency_feature", float(feature_probs.argmax()))
+        return learn_sample_weights(
+            z,
+            feature_probs,
+            n_rff=self.n_rff,
+            iters=self.reweight_iters,
+            lr=self.reweight_lr,
+            momentum=self.reweight_momentum,
+            weight_decay=self.reweight_weight_decay,
+            ess_penalty=self.reweight_ess_penalty,
+            use_rff=self.use_rff,
+            generator=generator,
+            return_losses=True,
+        )
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """The critic's encoder features z of a batch of (preprocessed) observations, without gradient."""

@@ -78,6 +78,22 @@ def test_learns_on_the_training_domains_and_its_weights_leave_one():
     assert {"sgfd/classifier_accuracy", "sgfd/weight_ess", "sgfd/decorrelation_loss_after"} <= set(logged)
 
 
+def test_sample_weights_follow_the_saliency_settings():
+    # Full smoothing mixes the saliency away: the weights must then be the no-saliency ablation's.
+    model = reweighting_model(saliency_smoothing=1.0)
+    z = th.randn(64, model.critic.features_extractor.features_dim, generator=th.Generator().manual_seed(1))
+
+    def weights(**settings) -> th.Tensor:
+        for name, value in settings.items():
+            setattr(model, name, value)
+        return model.sample_weights(z, th.Generator().manual_seed(2))[0]
+
+    uniform = weights(use_saliency=False)
+    assert not th.allclose(uniform, th.ones_like(uniform))
+    assert th.allclose(weights(use_saliency=True), uniform)
+    assert not th.allclose(weights(saliency_smoothing=0.0), uniform)
+
+
 def test_actor_is_updated_every_actor_update_interval_steps():
     model = reweighting_model(actor_update_interval=3, classifier_start=10**9)
     model.learn(400)

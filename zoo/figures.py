@@ -31,8 +31,8 @@ from stable_baselines3.common.preprocessing import is_image_space, preprocess_ob
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 import sgfd_envs
-from sb3_sgfd.reweighting import effective_sample_size, learn_sample_weights
-from sb3_sgfd.saliency import classifier_accuracy, feature_probabilities
+from sb3_sgfd.reweighting import effective_sample_size
+from sb3_sgfd.saliency import classifier_accuracy
 from zoo.algos import column_name, register_algorithms
 from zoo.evaluate import Run, find_runs
 from zoo.experiment import ZooError, wrap_like_training
@@ -270,24 +270,8 @@ def sgfd_weights(model: Any, observations: np.ndarray, domains: np.ndarray, seed
     obs = torch.as_tensor(observations, device=model.device)
     z = model.encode(obs)
     labels = torch.as_tensor(domains, device=model.device)
-    probs = (
-        feature_probabilities(model.classifier, z, temperature=model.saliency_temperature)
-        if (model.use_saliency)
-        else None
-    )
     generator = torch.Generator(device=model.device).manual_seed(seed)
-    weights = learn_sample_weights(
-        z,
-        probs,
-        n_rff=model.n_rff,
-        iters=model.reweight_iters,
-        lr=model.reweight_lr,
-        momentum=model.reweight_momentum,
-        weight_decay=model.reweight_weight_decay,
-        ess_penalty=model.reweight_ess_penalty,
-        use_rff=model.use_rff,
-        generator=generator,
-    )
+    weights, _, _ = model.sample_weights(z, generator)
     return {
         "weights": weights.cpu().numpy(),
         "classifier_accuracy": classifier_accuracy(model.classifier, z, labels),
