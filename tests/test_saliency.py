@@ -16,15 +16,6 @@ from sb3_sgfd.saliency import DomainClassifier, classifier_accuracy, feature_pro
 N_TRAIN = 4096
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    # Small matmuls: a second thread only adds contention on a busy machine.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 @cache
 def trained_classifier(d: int, n_tied: int, seed: int) -> tuple[DomainClassifier, DomainBatch]:
     """A classifier trained on other samples of the batch's distribution, and a held-out batch of 128."""
