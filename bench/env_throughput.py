@@ -104,8 +104,10 @@ def main(argv: list[str] | None = None) -> None:
         for name, step in methods.items():
             rates[name].append(steps_per_second(step, args.steps))
 
-    print(f"MUJOCO_GL={os.environ.get('MUJOCO_GL')}, {os.cpu_count()} CPUs, {IMAGE_SIZE}x{IMAGE_SIZE}, "
-          f"{args.steps} agent steps x {args.rounds} interleaved rounds, median")
+    print(
+        f"MUJOCO_GL={os.environ.get('MUJOCO_GL')}, {os.cpu_count()} CPUs, {IMAGE_SIZE}x{IMAGE_SIZE}, "
+        f"{args.steps} agent steps x {args.rounds} interleaved rounds, median"
+    )
     medians = {name: statistics.median(values) for name, values in rates.items()}
     for name, median in medians.items():
         print(f"  {name:<62} {median:8.1f} steps/s  ({1000 / median:6.2f} ms/step)")
