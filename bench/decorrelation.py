@@ -25,7 +25,7 @@ from torch import Tensor, nn
 from torch.nn import functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from sgfd_synthetic import DomainBatch, make_domain_batch
+from sgfd_synthetic import DomainBatch, ScaledLogits, make_domain_batch
 
 from sb3_sgfd.reweighting import (
     effective_sample_size,
@@ -57,17 +57,6 @@ def train_classifier(
 
 def tied_correlation(batch: DomainBatch, weights: Tensor | None = None) -> float:
     return weighted_pearson(batch.z, weights)[batch.top, batch.tied].abs().mean().item()
-
-
-class ScaledLogits(nn.Module):
-    """A classifier whose logits are multiplied by ``scale``: same decisions, less (or more) confident."""
-
-    def __init__(self, classifier: nn.Module, scale: float) -> None:
-        super().__init__()
-        self.classifier, self.scale = classifier, scale
-
-    def forward(self, z: Tensor) -> Tensor:
-        return self.scale * self.classifier(z)
 
 
 class Case:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 
 class DomainBatch(NamedTuple):
@@ -59,3 +59,14 @@ def make_domain_batch(
         top=int(column_of[0]),
         tied=[int(column_of[k]) for k in range(1, n_tied + 1)],
     )
+
+
+class ScaledLogits(nn.Module):
+    """A classifier whose logits are multiplied by ``scale``: same decisions, less (or more) confident."""
+
+    def __init__(self, classifier: nn.Module, scale: float) -> None:
+        super().__init__()
+        self.classifier, self.scale = classifier, scale
+
+    def forward(self, z: Tensor) -> Tensor:
+        return self.scale * self.classifier(z)

@@ -6,8 +6,8 @@ from functools import cache
 
 import pytest
 import torch
-from sgfd_synthetic import DomainBatch, make_domain_batch
-from torch import Tensor, nn
+from sgfd_synthetic import DomainBatch, ScaledLogits, make_domain_batch
+from torch import nn
 from torch.nn import functional as F
 
 from sb3_sgfd.reweighting import effective_sample_size, learn_sample_weights, weighted_pearson
@@ -39,15 +39,6 @@ def linear_classifier() -> nn.Linear:
     with torch.no_grad():
         layer.weight.copy_(torch.tensor([[1.0, -2.0, 0.0], [0.0, 0.0, 3.0]]))
     return layer
-
-
-class ScaledLogits(nn.Module):
-    def __init__(self, classifier: nn.Module, scale: float) -> None:
-        super().__init__()
-        self.classifier, self.scale = classifier, scale
-
-    def forward(self, z: Tensor) -> Tensor:
-        return self.scale * self.classifier(z)
 
 
 # --- DomainClassifier ---
