@@ -126,8 +126,9 @@ class ProceduralBackground:
     :param grayscale: replicate the luma into the three channels
     """
 
-    def __init__(self, seed: int, height: int, width: int, n_frames: int = DEFAULT_FRAME_BUDGET,
-                 grayscale: bool = False) -> None:
+    def __init__(
+        self, seed: int, height: int, width: int, n_frames: int = DEFAULT_FRAME_BUDGET, grayscale: bool = False
+    ) -> None:
         self.seed, self.height, self.width, self._n_frames = seed, height, width, n_frames
         self.grayscale = grayscale
         self._layers: tuple[np.ndarray, ...] | None = None
@@ -145,8 +146,9 @@ class ProceduralBackground:
         mask_field = _noise_field(rng, size, spectral_slope=3.0)
         blob_alpha = (np.clip((mask_field - 0.5) * 6 + 0.5, 0, 1) * 255).astype(np.uint16)
         if self.grayscale:
-            backdrop, blobs = (np.repeat(cv2.cvtColor(t, cv2.COLOR_RGB2GRAY)[..., None], 3, axis=2)
-                               for t in (backdrop, blobs))
+            backdrop, blobs = (
+                np.repeat(cv2.cvtColor(t, cv2.COLOR_RGB2GRAY)[..., None], 3, axis=2) for t in (backdrop, blobs)
+            )
         # Pad by one frame so any offset in [0, size) crops a contiguous window of the tiled texture.
         pad = ((0, self.height), (0, self.width))
         backdrop = np.pad(backdrop, (*pad, (0, 0)), mode="wrap").astype(np.uint16)
@@ -202,8 +204,14 @@ class VideoBackground:
     :param grayscale: replicate the luma into the three channels (DBC's setting)
     """
 
-    def __init__(self, path: str | Path, height: int, width: int, frame_budget: int = DEFAULT_FRAME_BUDGET,
-                 grayscale: bool = False) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        height: int,
+        width: int,
+        frame_budget: int = DEFAULT_FRAME_BUDGET,
+        grayscale: bool = False,
+    ) -> None:
         self.path = str(path)
         self.height, self.width, self.frame_budget, self.grayscale = height, width, frame_budget, grayscale
         self._check_readable()
@@ -270,8 +278,9 @@ def check_background_split(split: str) -> str:
 
 
 def _media_files(folder: Path) -> tuple[Path, ...]:
-    return tuple(sorted(p for p in folder.iterdir()
-                        if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES + IMAGE_SUFFIXES))
+    return tuple(
+        sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES + IMAGE_SUFFIXES)
+    )
 
 
 def background_files(background_dir: str | Path) -> dict[str, tuple[Path, ...]]:
@@ -288,8 +297,10 @@ def background_files(background_dir: str | Path) -> dict[str, tuple[Path, ...]]:
     present = [split for split, sub in subfolders.items() if sub.is_dir()]
     if present:
         if len(present) != len(BACKGROUND_SPLITS):
-            raise ValueError(f"background_dir {str(folder)!r} has {present[0]}/ but no "
-                             f"{({*BACKGROUND_SPLITS} - {*present}).pop()}/: give both or neither")
+            raise ValueError(
+                f"background_dir {str(folder)!r} has {present[0]}/ but no "
+                f"{({*BACKGROUND_SPLITS} - {*present}).pop()}/: give both or neither"
+            )
         files = {split: _media_files(sub) for split, sub in subfolders.items()}
         for split, found in files.items():
             if not found:
@@ -317,8 +328,15 @@ def n_background_domains(split: str, background_dir: str | Path | None = None) -
     return len(background_files(background_dir)[split])
 
 
-def make_background(split: str, domain: int, height: int, width: int, background_dir: str | Path | None = None,
-                    frame_budget: int = DEFAULT_FRAME_BUDGET, grayscale: bool = False) -> BackgroundSource:
+def make_background(
+    split: str,
+    domain: int,
+    height: int,
+    width: int,
+    background_dir: str | Path | None = None,
+    frame_budget: int = DEFAULT_FRAME_BUDGET,
+    grayscale: bool = False,
+) -> BackgroundSource:
     """The background source of one domain; frames are produced or decoded on first use.
 
     :param split: ``"train"`` or ``"test"``

@@ -125,8 +125,15 @@ class CameraRenderer:
             bool (H, W) mask of background pixels (else None)
         """
         physics = self._physics
-        mujoco.mjv_updateScene(physics.model.ptr, physics.data.ptr, self._option.ptr, self._perturb.ptr,
-                               self._camera.ptr, mujoco.mjtCatBit.mjCAT_ALL, self._scene.ptr)
+        mujoco.mjv_updateScene(
+            physics.model.ptr,
+            physics.data.ptr,
+            self._option.ptr,
+            self._perturb.ptr,
+            self._camera.ptr,
+            mujoco.mjtCatBit.mjCAT_ALL,
+            self._scene.ptr,
+        )
         with physics.contexts.gl.make_current() as ctx:
             ctx.call(self._draw_and_read)
         # OpenGL's first row is the bottom of the image.
@@ -157,9 +164,18 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 25}
 
-    def __init__(self, dm_env: control.Environment, label: DomainLabel, *, action_repeat: int = 2,
-                 obs_type: str = "pixels", image_size: int = 84, background: BackgroundSource | None = None,
-                 camera_id: int = 0, render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        dm_env: control.Environment,
+        label: DomainLabel,
+        *,
+        action_repeat: int = 2,
+        obs_type: str = "pixels",
+        image_size: int = 84,
+        background: BackgroundSource | None = None,
+        camera_id: int = 0,
+        render_mode: str | None = None,
+    ) -> None:
         if obs_type not in OBS_TYPES:
             raise ValueError(f"obs_type must be one of {OBS_TYPES}, got {obs_type!r}")
         check_image_size(image_size)
@@ -181,8 +197,9 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         self.metadata = {**self.metadata, "render_fps": round(1 / (dm_env.control_timestep() * action_repeat))}
 
         action_spec = dm_env.action_spec()
-        self.action_space = spaces.Box(action_spec.minimum.astype(np.float32),
-                                       action_spec.maximum.astype(np.float32), dtype=np.float32)
+        self.action_space = spaces.Box(
+            action_spec.minimum.astype(np.float32), action_spec.maximum.astype(np.float32), dtype=np.float32
+        )
         if obs_type == "pixels":
             self.observation_space = spaces.Box(0, 255, (self.image_size, self.image_size, 3), dtype=np.uint8)
         else:
@@ -244,8 +261,9 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _frame(self) -> np.ndarray:
         if self._renderer is None:
-            self._renderer = CameraRenderer(self._dm_env.physics, self.image_size, self._camera_id,
-                                            hide_backdrop=self._background is not None)
+            self._renderer = CameraRenderer(
+                self._dm_env.physics, self.image_size, self._camera_id, hide_backdrop=self._background is not None
+            )
         rgb, background_mask = self._renderer.render()
         if self._background is None:
             return rgb
@@ -256,15 +274,15 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
     def _observation(self, dm_observation: dict[str, np.ndarray]) -> np.ndarray:
         if self.obs_type == "state":
             self._last_frame = None
-            return np.concatenate([np.asarray(value, dtype=np.float32).ravel()
-                                   for value in dm_observation.values()])
+            return np.concatenate([np.asarray(value, dtype=np.float32).ravel() for value in dm_observation.values()])
         self._last_frame = self._frame()
         return self._last_frame.copy()
 
     # --- gymnasium API ----------------------------------------------------------------------------
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
-              ) -> tuple[np.ndarray, dict[str, int]]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, int]]:
         """Start an episode; ``seed`` seeds the initial state and the background start.
 
         :param seed: seed of this env's ``np_random``

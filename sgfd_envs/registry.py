@@ -141,10 +141,18 @@ def _check_domain(domain: int, count: int, split: str) -> int:
     return int(domain)
 
 
-def make_background_env(env_id: str, split: str = "train", domain: int = 0, *,
-                        background_dir: str | Path | None = None, frame_budget: int = DEFAULT_FRAME_BUDGET,
-                        grayscale: bool = False, obs_type: str = "pixels", image_size: int = 84,
-                        render_mode: str | None = None) -> DMCEnv:
+def make_background_env(
+    env_id: str,
+    split: str = "train",
+    domain: int = 0,
+    *,
+    background_dir: str | Path | None = None,
+    frame_budget: int = DEFAULT_FRAME_BUDGET,
+    grayscale: bool = False,
+    obs_type: str = "pixels",
+    image_size: int = 84,
+    render_mode: str | None = None,
+) -> DMCEnv:
     """A distracting-background env (entry point of the background ids).
 
     :param env_id: a background id of :data:`SGFD_IDS`
@@ -165,13 +173,28 @@ def make_background_env(env_id: str, split: str = "train", domain: int = 0, *,
     domain = _check_domain(domain, count, split)
     background = make_background(split, domain, image_size, image_size, background_dir, frame_budget, grayscale)
     label = DomainLabel(split=split, domain=domain, n_domains=count)
-    return DMCEnv(domains.load(entry.robot, entry.task), label, action_repeat=entry.action_repeat,
-                  obs_type=obs_type, image_size=image_size, background=background, render_mode=render_mode)
+    return DMCEnv(
+        domains.load(entry.robot, entry.task),
+        label,
+        action_repeat=entry.action_repeat,
+        obs_type=obs_type,
+        image_size=image_size,
+        background=background,
+        render_mode=render_mode,
+    )
 
 
-def make_morphology_env(env_id: str, split: str | None = None, domain: int | None = None, *,
-                        setting: int | None = None, split_settings: Mapping[str, Sequence[int]] | None = None,
-                        obs_type: str = "pixels", image_size: int = 84, render_mode: str | None = None) -> DMCEnv:
+def make_morphology_env(
+    env_id: str,
+    split: str | None = None,
+    domain: int | None = None,
+    *,
+    setting: int | None = None,
+    split_settings: Mapping[str, Sequence[int]] | None = None,
+    obs_type: str = "pixels",
+    image_size: int = 84,
+    render_mode: str | None = None,
+) -> DMCEnv:
     """A modified-morphology env (entry point of the MT ids).
 
     :param env_id: an MT id of :data:`SGFD_IDS`
@@ -187,8 +210,10 @@ def make_morphology_env(env_id: str, split: str | None = None, domain: int | Non
     entry = _entry_of_kind(env_id, MORPHOLOGY)
     if setting is not None:
         if split is not None or domain is not None:
-            raise ValueError(f"give either setting= or split=/domain=, not both (got setting={setting!r}, "
-                             f"split={split!r}, domain={domain!r})")
+            raise ValueError(
+                f"give either setting= or split=/domain=, not both (got setting={setting!r}, "
+                f"split={split!r}, domain={domain!r})"
+            )
         label_split, label_domain, count = None, 0, 1
         setting = check_setting(setting)
     else:
@@ -198,11 +223,23 @@ def make_morphology_env(env_id: str, split: str | None = None, domain: int | Non
         label_domain = _check_domain(0 if domain is None else domain, count, label_split)
         setting = settings[label_domain]
     morphology = domains.morphology(entry.robot)
-    label = DomainLabel(split=label_split, domain=label_domain, n_domains=count, setting=setting,
-                        morphology_parameter=morphology.parameter, morphology_value=morphology.value(setting))
+    label = DomainLabel(
+        split=label_split,
+        domain=label_domain,
+        n_domains=count,
+        setting=setting,
+        morphology_parameter=morphology.parameter,
+        morphology_value=morphology.value(setting),
+    )
     dm_env = domains.load(entry.robot, entry.task, morphology.scale(setting))
-    return DMCEnv(dm_env, label, action_repeat=entry.action_repeat, obs_type=obs_type, image_size=image_size,
-                  render_mode=render_mode)
+    return DMCEnv(
+        dm_env,
+        label,
+        action_repeat=entry.action_repeat,
+        obs_type=obs_type,
+        image_size=image_size,
+        render_mode=render_mode,
+    )
 
 
 ENTRY_POINTS: dict[str, Callable[..., gym.Env]] = {
@@ -217,8 +254,12 @@ def register_envs() -> None:
     for env_id, entry in TASKS.items():
         if env_id in gym.registry:
             continue
-        gym.register(env_id, entry_point=ENTRY_POINTS[entry.variation], kwargs={"env_id": env_id},
-                     max_episode_steps=entry.max_episode_steps)
+        gym.register(
+            env_id,
+            entry_point=ENTRY_POINTS[entry.variation],
+            kwargs={"env_id": env_id},
+            max_episode_steps=entry.max_episode_steps,
+        )
 
 
 def _make_monitored_env(env_id: str, split: str, domain: int, action_seed: int, env_kwargs: dict) -> gym.Env:
@@ -229,8 +270,14 @@ def _make_monitored_env(env_id: str, split: str, domain: int, action_seed: int, 
     return Monitor(env)
 
 
-def make_domain_vec_env(env_id: str, split: str = "train", n_envs: int | None = None, seed: int = 0,
-                        vec_env_cls: type[VecEnv] | None = None, **env_kwargs) -> VecEnv:
+def make_domain_vec_env(
+    env_id: str,
+    split: str = "train",
+    n_envs: int | None = None,
+    seed: int = 0,
+    vec_env_cls: type[VecEnv] | None = None,
+    **env_kwargs,
+) -> VecEnv:
     """An SB3 VecEnv with one sub-env per domain of a split (sub-env i is domain i % n_domains).
 
     Each sub-env is wrapped in SB3's Monitor and seeded ``seed + i`` (its action space too).
@@ -256,8 +303,9 @@ def make_domain_vec_env(env_id: str, split: str = "train", n_envs: int | None = 
 
     # A module-level function in a partial pickles by reference, so a subprocess imports sgfd_envs
     # (registering the ids) before it builds its env.
-    factories = [functools.partial(_make_monitored_env, env_id, split, i % count, seed + i, env_kwargs)
-                 for i in range(n_envs)]
+    factories = [
+        functools.partial(_make_monitored_env, env_id, split, i % count, seed + i, env_kwargs) for i in range(n_envs)
+    ]
     vec_env = (vec_env_cls or DummyVecEnv)(factories)
     vec_env.seed(seed)
     return vec_env

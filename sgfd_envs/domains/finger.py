@@ -63,6 +63,4 @@ def load(task: str, scale: float = 1.0) -> control.Environment:
         raise ValueError(f"finger task must be one of {TASKS}, got {task!r}")
     physics = dm_finger.Physics.from_xml_string(model_xml(scale), common.ASSETS)
     finger_task = dm_finger.Spin() if task == "spin" else dm_finger.Turn(target_radius=_TURN_TARGET_RADIUS)
-    return control.Environment(
-        physics, finger_task, time_limit=float("inf"), control_timestep=CONTROL_TIMESTEP
-    )
+    return control.Environment(physics, finger_task, time_limit=float("inf"), control_timestep=CONTROL_TIMESTEP)

@@ -91,6 +91,4 @@ def load(task: str, scale: float = 1.0) -> control.Environment:
         raise ValueError(f"walker task must be one of {TASKS}, got {task!r}")
     physics = dm_walker.Physics.from_xml_string(model_xml(scale), common.ASSETS)
     move = Move(move_speed=MOVE_SPEEDS[task], stand_height=stand_height(scale))
-    return control.Environment(
-        physics, move, time_limit=float("inf"), control_timestep=CONTROL_TIMESTEP
-    )
+    return control.Environment(physics, move, time_limit=float("inf"), control_timestep=CONTROL_TIMESTEP)
