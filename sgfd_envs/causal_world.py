@@ -21,7 +21,7 @@ from typing import Any, ClassVar
 import gymnasium as gym
 import numpy as np
 
-from sgfd_envs.morphology import N_SETTINGS, check_setting, resolve_split_settings
+from sgfd_envs.morphology import N_SETTINGS, check_setting, select_setting
 
 INSTALL_HINT = 'Causal World ids need the optional extra: pip install -e ".[causalworld]"'
 OBJECT = "tool_block"
@@ -139,28 +139,9 @@ class CausalWorldEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         if isinstance(skip_frame, bool) or not isinstance(skip_frame, int) or skip_frame < 1:
             raise ValueError(f"skip_frame must be a positive int, got {skip_frame!r}")
-        if setting is not None:
-            if split is not None or domain is not None:
-                raise ValueError(
-                    f"give either setting= or split=/domain=, not both (got setting={setting!r}, "
-                    f"split={split!r}, domain={domain!r})"
-                )
-            self.split, self.domain, self.n_domains = None, 0, 1
-            self.setting = check_setting(setting)
-        else:
-            table = resolve_split_settings(split_settings)
-            self.split = "train" if split is None else split
-            if self.split not in table:
-                raise ValueError(f"split must be one of {tuple(table)} for Causal World ids, got {self.split!r}")
-            settings = table[self.split]
-            self.n_domains = len(settings)
-            domain = 0 if domain is None else domain
-            if isinstance(domain, bool) or not isinstance(domain, (int, np.integer)) or not 0 <= domain < len(settings):
-                raise ValueError(
-                    f"domain must be an int in 0..{len(settings) - 1} for split {self.split!r}, got {domain!r}"
-                )
-            self.domain = int(domain)
-            self.setting = settings[self.domain]
+        self.split, self.domain, self.n_domains, self.setting = select_setting(
+            split, domain, setting, split_settings, ids="Causal World ids"
+        )
         self.task = task
         self.variation = VARIATIONS[task]
         self.render_mode = render_mode

@@ -62,6 +62,58 @@ def resolve_split_settings(
     return resolved
 
 
+def check_domain(domain: int, count: int, split: str) -> int:
+    """Return ``domain`` as an int if it indexes one of the ``count`` domains of ``split``, else raise.
+
+    :param domain: index of a domain within its split
+    :param count: number of domains in the split
+    :param split: the split's name, for the message
+    """
+    if isinstance(domain, bool) or not isinstance(domain, (int, np.integer)) or not 0 <= domain < count:
+        raise ValueError(f"domain must be an int in 0..{count - 1} for split {split!r}, got {domain!r}")
+    return int(domain)
+
+
+def split_settings_of(
+    split: str, split_settings: Mapping[str, Sequence[int]] | None = None, ids: str = "MT ids"
+) -> tuple[int, ...]:
+    """The settings of one split, after ``split_settings`` replaced some splits.
+
+    :param split: ``train``, ``interpolation`` or ``extrapolation``
+    :param split_settings: see :func:`resolve_split_settings`
+    :param ids: the family of ids, for the message
+    """
+    table = resolve_split_settings(split_settings)
+    if split not in table:
+        raise ValueError(f"split must be one of {MORPHOLOGY_SPLITS} for {ids}, got {split!r}")
+    return table[split]
+
+
+def select_setting(
+    split: str | None,
+    domain: int | None,
+    setting: int | None,
+    split_settings: Mapping[str, Sequence[int]] | None = None,
+    ids: str = "MT ids",
+) -> tuple[str | None, int, int, int]:
+    """Which setting an env gets: ``setting`` itself (domain 0 of no split), or domain ``domain``
+    (default 0) of split ``split`` (default ``train``).
+
+    :return: split (None with ``setting=``), domain index, number of domains in the split, setting
+    """
+    if setting is not None:
+        if split is not None or domain is not None:
+            raise ValueError(
+                f"give either setting= or split=/domain=, not both (got setting={setting!r}, "
+                f"split={split!r}, domain={domain!r})"
+            )
+        return None, 0, 1, check_setting(setting)
+    split = "train" if split is None else split
+    settings = split_settings_of(split, split_settings, ids)
+    domain = check_domain(0 if domain is None else domain, len(settings), split)
+    return split, domain, len(settings), settings[domain]
+
+
 @dataclass(frozen=True)
 class Morphology:
     """The one length an MT robot varies, and its ten settings.

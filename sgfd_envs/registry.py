@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import gymnasium as gym
-import numpy as np
 
 from sgfd_envs import domains
 from sgfd_envs.backgrounds import (
@@ -22,7 +21,7 @@ from sgfd_envs.backgrounds import (
 )
 from sgfd_envs.causal_world import make_causal_world_env
 from sgfd_envs.dmc import EPISODE_CONTROL_STEPS, DMCEnv, DomainLabel, check_image_size
-from sgfd_envs.morphology import MORPHOLOGY_SPLITS, check_setting, resolve_split_settings
+from sgfd_envs.morphology import MORPHOLOGY_SPLITS, check_domain, select_setting, split_settings_of
 
 if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import VecEnv
@@ -125,20 +124,7 @@ def n_domains(env_id: str, split: str = "train", **env_kwargs) -> int:
     """
     if task_entry(env_id).variation == BACKGROUND:
         return n_background_domains(split, env_kwargs.get("background_dir"))
-    return len(_morphology_split(split, env_kwargs.get("split_settings")))
-
-
-def _morphology_split(split: str, split_settings: Mapping[str, Sequence[int]] | None) -> tuple[int, ...]:
-    table = resolve_split_settings(split_settings)
-    if split not in table:
-        raise ValueError(f"split must be one of {MORPHOLOGY_SPLITS} for MT ids, got {split!r}")
-    return table[split]
-
-
-def _check_domain(domain: int, count: int, split: str) -> int:
-    if isinstance(domain, bool) or not isinstance(domain, (int, np.integer)) or not 0 <= domain < count:
-        raise ValueError(f"domain must be an int in 0..{count - 1} for split {split!r}, got {domain!r}")
-    return int(domain)
+    return len(split_settings_of(split, env_kwargs.get("split_settings")))
 
 
 def make_background_env(
@@ -170,7 +156,7 @@ def make_background_env(
     check_image_size(image_size)
     check_background_split(split)
     count = n_background_domains(split, background_dir)
-    domain = _check_domain(domain, count, split)
+    domain = check_domain(domain, count, split)
     background = make_background(split, domain, image_size, image_size, background_dir, frame_budget, grayscale)
     label = DomainLabel(split=split, domain=domain, n_domains=count)
     return DMCEnv(
@@ -208,20 +194,7 @@ def make_morphology_env(
     :param render_mode: None or ``"rgb_array"``
     """
     entry = _entry_of_kind(env_id, MORPHOLOGY)
-    if setting is not None:
-        if split is not None or domain is not None:
-            raise ValueError(
-                f"give either setting= or split=/domain=, not both (got setting={setting!r}, "
-                f"split={split!r}, domain={domain!r})"
-            )
-        label_split, label_domain, count = None, 0, 1
-        setting = check_setting(setting)
-    else:
-        label_split = "train" if split is None else split
-        settings = _morphology_split(label_split, split_settings)
-        count = len(settings)
-        label_domain = _check_domain(0 if domain is None else domain, count, label_split)
-        setting = settings[label_domain]
+    label_split, label_domain, count, setting = select_setting(split, domain, setting, split_settings)
     morphology = domains.morphology(entry.robot)
     label = DomainLabel(
         split=label_split,
