@@ -20,7 +20,6 @@ from gymnasium import spaces
 
 from sgfd_envs.backgrounds import BackgroundSource, composite
 
-EPISODE_CONTROL_STEPS = 1000
 OBS_TYPES = ("pixels", "state")
 # OpenGL clears the depth buffer to the far plane, 1.0; no drawn geom reaches it.
 _CLEARED_DEPTH = 1.0
@@ -146,8 +145,9 @@ class CameraRenderer:
 class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
     """A dm_control task as a gymnasium env.
 
-    Episodes last ``EPISODE_CONTROL_STEPS`` (1000) dm_control steps, i.e. 500 agent steps at action
-    repeat 2, and end with ``truncated=True`` (``terminated`` only if dm_control's discount is 0).
+    The env never truncates: the registered ids end their episodes with gymnasium's ``TimeLimit`` (1000
+    dm_control steps, i.e. 500 agent steps at action repeat 2). ``terminated`` only if dm_control's
+    discount is 0.
     The reward of an agent step is the sum over its repeats. ``reset(seed=s)`` seeds the task's
     initial state and the background start, so the same actions reproduce the same episode.
 
@@ -206,7 +206,6 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
             state_size = sum(int(np.prod(spec.shape)) for spec in dm_env.observation_spec().values())
             self.observation_space = spaces.Box(-np.inf, np.inf, (state_size,), dtype=np.float32)
 
-        self._control_steps = 0
         self._agent_steps = 0
         # Where the background sequence starts, as a fraction of its length: drawn at reset, turned into
         # a frame index only when a frame is needed, so state observations never decode a video.
@@ -291,29 +290,32 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         super().reset(seed=seed)
         self._dm_env.task.random.seed(int(self.np_random.integers(2**31)))
         time_step = self._dm_env.reset()
-        self._control_steps = 0
         self._agent_steps = 0
         if self._background is not None:
             self._background_phase = float(self.np_random.random())
         return self._observation(time_step.observation), self._info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, int]]:
-        """Apply ``action`` for ``action_repeat`` dm_control steps (fewer if the episode ends).
+        """Apply ``action`` for ``action_repeat`` dm_control steps (fewer if the episode terminates).
 
         :param action: float array in the action space
         """
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != self.action_space.shape or not np.isfinite(action).all():
+            raise ValueError(
+                f"action must be a finite array of shape {self.action_space.shape} (the action space), got "
+                f"{np.array2string(action, precision=3, threshold=12)}"
+            )
         reward = 0.0
-        terminated = truncated = False
+        terminated = False
         for _ in range(self.action_repeat):
             time_step = self._dm_env.step(action)
-            self._control_steps += 1
             reward += time_step.reward or 0.0
             terminated = bool(time_step.discount == 0.0)
-            truncated = self._control_steps >= EPISODE_CONTROL_STEPS and not terminated
-            if terminated or truncated:
+            if terminated:
                 break
         self._agent_steps += 1
-        return self._observation(time_step.observation), float(reward), terminated, truncated, self._info()
+        return self._observation(time_step.observation), float(reward), terminated, False, self._info()
 
     def render(self) -> np.ndarray | None:
         """The current frame (the pixel observation, or a fresh render for state observations)."""

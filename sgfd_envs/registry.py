@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import functools
+import inspect
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
@@ -19,9 +20,10 @@ from sgfd_envs.backgrounds import (
     make_background,
     n_background_domains,
 )
-from sgfd_envs.causal_world import make_causal_world_env
-from sgfd_envs.dmc import EPISODE_CONTROL_STEPS, DMCEnv, DomainLabel, check_image_size
-from sgfd_envs.morphology import MORPHOLOGY_SPLITS, check_domain, select_setting, split_settings_of
+from sgfd_envs.causal_world import CausalWorldEnv, make_causal_world_env
+from sgfd_envs.dmc import DMCEnv, DomainLabel, check_image_size
+from sgfd_envs.morphology import MORPHOLOGY_SPLITS, SETTINGS, check_domain, select_setting, split_settings_of
+from sgfd_envs.wrappers import ObserveParameter, check_observe_parameter, scale_to_unit
 
 if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import VecEnv
@@ -30,6 +32,8 @@ BACKGROUND = "background"
 MORPHOLOGY = "morphology"
 # Causal World (optional extra): an object property per domain, with the MT ids' settings and splits.
 CAUSAL_WORLD = "causal_world"
+# dm_control's episodes: 1000 simulator steps; gymnasium's TimeLimit ends them (agent steps = 1000 / repeat).
+EPISODE_CONTROL_STEPS = 1000
 SPLITS: dict[str, tuple[str, ...]] = {
     BACKGROUND: BACKGROUND_SPLITS,
     MORPHOLOGY: MORPHOLOGY_SPLITS,
@@ -178,9 +182,10 @@ def make_morphology_env(
     setting: int | None = None,
     split_settings: Mapping[str, Sequence[int]] | None = None,
     obs_type: str = "pixels",
+    observe_parameter: bool = False,
     image_size: int = 84,
     render_mode: str | None = None,
-) -> DMCEnv:
+) -> gym.Env:
     """A modified-morphology env (entry point of the MT ids).
 
     :param env_id: an MT id of :data:`SGFD_IDS`
@@ -190,10 +195,13 @@ def make_morphology_env(
         the single domain of no split (``split`` None, ``domain`` 0)
     :param split_settings: replace the settings of some splits, e.g. ``{"train": (1, 2, 3, 4)}``
     :param obs_type: ``"pixels"`` or ``"state"``
+    :param observe_parameter: append the varied length, scaled to [-1, 1] over the ten settings, to the
+        state (see :class:`sgfd_envs.wrappers.ObserveParameter`); states only
     :param image_size: height and width of the pixel observation
     :param render_mode: None or ``"rgb_array"``
     """
     entry = _entry_of_kind(env_id, MORPHOLOGY)
+    check_observe_parameter(observe_parameter, obs_type)
     label_split, label_domain, count, setting = select_setting(split, domain, setting, split_settings)
     morphology = domains.morphology(entry.robot)
     label = DomainLabel(
@@ -205,7 +213,7 @@ def make_morphology_env(
         morphology_value=morphology.value(setting),
     )
     dm_env = domains.load(entry.robot, entry.task, morphology.scale(setting))
-    return DMCEnv(
+    env = DMCEnv(
         dm_env,
         label,
         action_repeat=entry.action_repeat,
@@ -213,23 +221,56 @@ def make_morphology_env(
         image_size=image_size,
         render_mode=render_mode,
     )
+    if not observe_parameter:
+        return env
+    scaled = scale_to_unit(morphology.value(setting), morphology.value(SETTINGS[0]), morphology.value(SETTINGS[-1]))
+    return ObserveParameter(env, scaled, morphology.parameter)
 
 
-ENTRY_POINTS: dict[str, Callable[..., gym.Env]] = {
+BUILDERS: dict[str, Callable[..., gym.Env]] = {
     BACKGROUND: make_background_env,
     MORPHOLOGY: make_morphology_env,
     CAUSAL_WORLD: make_causal_world_env,
 }
 
 
+def env_kwargs_of(env_id: str) -> tuple[str, ...]:
+    """The keyword arguments ``gym.make`` takes for an id (those of its kind's builder).
+
+    :param env_id: one of :data:`TASKS`
+    """
+    builder = BUILDERS[task_entry(env_id).variation]
+    names = inspect.signature(builder).parameters
+    if builder is make_causal_world_env:
+        names = {**names, **inspect.signature(CausalWorldEnv).parameters}
+    return tuple(name for name in names if name not in ("env_id", "task", "kwargs"))
+
+
+def make_env(env_id: str, **kwargs: Any) -> gym.Env:
+    """The entry point of every id: refuses, by name, keyword arguments of the other kind of id (a background
+    id given ``setting=``, an MT id given ``background_dir=``), then builds the env.
+
+    :param env_id: one of :data:`TASKS`
+    :param kwargs: the id's keyword arguments (:func:`env_kwargs_of`)
+    """
+    allowed = env_kwargs_of(env_id)
+    unknown = [name for name in kwargs if name not in allowed]
+    if unknown:
+        kind = task_entry(env_id).variation.replace("_", " ")
+        raise ValueError(
+            f"{env_id} does not take {', '.join(map(repr, unknown))}: {kind} ids take {', '.join(allowed)}"
+        )
+    return BUILDERS[task_entry(env_id).variation](env_id, **kwargs)
+
+
 def register_envs() -> None:
-    """Register every id of :data:`TASKS` with gymnasium (idempotent)."""
+    """Register every id of :data:`TASKS` with gymnasium (idempotent); ``TimeLimit`` ends the episodes."""
     for env_id, entry in TASKS.items():
         if env_id in gym.registry:
             continue
         gym.register(
             env_id,
-            entry_point=ENTRY_POINTS[entry.variation],
+            entry_point=make_env,
             kwargs={"env_id": env_id},
             max_episode_steps=entry.max_episode_steps,
         )

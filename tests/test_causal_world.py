@@ -116,3 +116,15 @@ def test_correlation_study_runs_on_causal_world(causal_world, tmp_path, capsys):
         assert 0 <= document[key]["mean_abs_corr"] <= 1 and 0 < document[key]["ess"] <= 1
     assert (out / "correlation.png").stat().st_size > 0
     assert "tool_block_mass" in capsys.readouterr().out
+
+
+def test_observe_parameter_appends_the_scaled_block_property(causal_world):
+    for setting, expected in ((1, -1.0), (10, 1.0)):
+        env = gym.make("SGFD/CW-picking-v0", setting=setting, observe_parameter=True)
+        try:
+            obs, _ = env.reset(seed=0)
+            assert env.observation_space.shape == (len(STATE_NAMES) + 1,)
+            assert obs[-1] == pytest.approx(expected)
+            assert env.step(env.action_space.sample())[0][-1] == pytest.approx(expected)
+        finally:
+            env.close()

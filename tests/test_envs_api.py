@@ -298,7 +298,52 @@ def test_entry_points_refuse_ids_of_the_other_kind():
 
 
 def test_variation_specific_kwargs_are_refused_by_the_other_kind():
-    with pytest.raises(TypeError, match="setting"):
+    with pytest.raises(ValueError, match=r"SGFD/walker-walk-v0 does not take 'setting': background ids take split, "):
         gym.make("SGFD/walker-walk-v0", setting=3)
-    with pytest.raises(TypeError, match="background_dir"):
+    with pytest.raises(ValueError, match=r"does not take 'background_dir': morphology ids take .*observe_parameter"):
         gym.make("SGFD/MT-walker-walk-v0", background_dir="/tmp")
+    with pytest.raises(ValueError, match="does not take 'observe_parameter'"):
+        gym.make("SGFD/cheetah-run-v0", observe_parameter=True)
+
+
+@pytest.mark.parametrize("action", [[float("nan")] * 6, [0.0] * 5, [0.0, float("inf"), 0, 0, 0, 0]])
+def test_a_non_finite_or_misshapen_action_is_refused_by_name(action):
+    env = gym.make("SGFD/MT-walker-walk-v0", obs_type="state")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action must be a finite array of shape \(6,\)"):
+        env.unwrapped.step(np.asarray(action, dtype=np.float32))
+    env.close()
+
+
+def test_observe_parameter_appends_the_scaled_parameter_and_only_on_states():
+    values = {}
+    for setting in (1, 3, 10):
+        env = gym.make("SGFD/MT-walker-walk-v0", setting=setting, obs_type="state", observe_parameter=True)
+        plain = gym.make("SGFD/MT-walker-walk-v0", setting=setting, obs_type="state")
+        obs, _ = env.reset(seed=1)
+        plain_obs, _ = plain.reset(seed=1)
+        assert env.observation_space.shape == (plain.observation_space.shape[0] + 1,)
+        assert env.observation_space.contains(obs)
+        np.testing.assert_array_equal(obs[:-1], plain_obs)
+        step_obs, *_ = env.step(np.zeros(6, dtype=np.float32))
+        assert step_obs[-1] == obs[-1]  # constant within the episode
+        values[setting] = float(obs[-1])
+        env.close()
+        plain.close()
+    # torso 0.48 m at setting 1, 0.6 m (dm_control) at 3, 1.02 m at 10, linear in between
+    assert values[1] == pytest.approx(-1.0) and values[10] == pytest.approx(1.0)
+    assert values[3] == pytest.approx(2 * (0.6 - 0.48) / (1.02 - 0.48) - 1, abs=1e-6)
+    with pytest.raises(ValueError, match="observe_parameter=True needs obs_type='state'"):
+        gym.make("SGFD/MT-walker-walk-v0", observe_parameter=True)
+    with pytest.raises(ValueError, match="observe_parameter must be True or False"):
+        gym.make("SGFD/MT-walker-walk-v0", obs_type="state", observe_parameter="yes")
+
+
+def test_observe_parameter_gives_each_training_domain_its_own_value_in_a_vec_env():
+    venv = sgfd_envs.make_domain_vec_env("SGFD/MT-cheetah-run-v0", obs_type="state", observe_parameter=True)
+    try:
+        obs = venv.reset()
+        assert venv.get_attr("setting") == [1, 2, 4, 5]
+        assert np.all(np.diff(obs[:, -1]) > 0) and np.all(np.abs(obs[:, -1]) <= 1)
+    finally:
+        venv.close()
