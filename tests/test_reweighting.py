@@ -10,9 +10,11 @@ from sgfd_synthetic import DomainBatch, make_domain_batch
 from torch import Tensor
 
 from sb3_sgfd.reweighting import (
+    WeightMemory,
     decorrelation_loss,
     effective_sample_size,
     learn_sample_weights,
+    loss_gradient,
     random_fourier_features,
     weighted_pearson,
 )
@@ -283,6 +285,95 @@ def test_solver_rejects_bad_input(kwargs, match):
     z = kwargs.pop("z", torch.randn(8, 4, generator=seeded(0)))
     with pytest.raises(ValueError, match=match):
         learn_sample_weights(z, **kwargs)
+
+
+# --- the closed-form gradient, and the solver against an autograd reference ---
+
+
+def softmax_projection(gradient: Tensor, a: Tensor) -> Tensor:
+    """What the solver uses of a gradient in a: a * (g - a . g), blind to terms equal for every sample."""
+    return a * (gradient - a @ gradient)
+
+
+@pytest.mark.parametrize("covariance", ["weighted", "literal"])
+def test_closed_form_gradient_matches_autograd(covariance):
+    rff = torch.randn(12, 4, 3, generator=seeded(0), dtype=torch.float64)
+    probs = torch.softmax(torch.randn(4, generator=seeded(1), dtype=torch.float64), dim=0)
+    a = torch.softmax(torch.randn(12, generator=seeded(2), dtype=torch.float64), dim=0).requires_grad_(True)
+    # decorrelation_loss takes weights w = n a
+    decorrelation_loss(rff, 12 * a, probs, covariance=covariance).backward()
+    closed = loss_gradient(rff, a.detach(), probs, covariance=covariance)
+    torch.testing.assert_close(softmax_projection(closed, a.detach()), softmax_projection(a.grad, a.detach()))
+    # and it is not blind: a different distribution gives a different projected gradient
+    other = loss_gradient(rff, torch.full((12,), 1 / 12, dtype=torch.float64), probs, covariance=covariance)
+    assert not torch.allclose(softmax_projection(other, a.detach()), softmax_projection(closed, a.detach()))
+
+
+def reference_solver(z: Tensor, probs: Tensor | None, seed: int, memory: tuple[Tensor, Tensor] | None = None, **kw):
+    """The solver written with autograd and torch's SGD: standardise, RFF, then SGD on the logits of
+    loss / loss(start) + ess_penalty * (n sum(a^2) - 1) over the batch and the memory's rows."""
+    n, d = z.shape
+    lr, iters, penalty = kw.get("lr", 5.0), kw.get("iters", 10), kw.get("ess_penalty", 0.35)
+    zs = 0.5 * (z - z.mean(0)) / z.std(0)
+    memory_z, memory_logits = memory if memory is not None else (z[:0], z.new_zeros(0))
+    rff = random_fourier_features(torch.cat([zs, memory_z]), 5, generator=seeded(seed))
+    probs = torch.full((d,), 1 / d) if probs is None else probs
+    theta = torch.zeros(n, requires_grad=True)
+    optimizer = torch.optim.SGD([theta], lr=lr, momentum=0.9, weight_decay=1e-4)
+    n_all = len(rff)
+
+    def loss(t: Tensor) -> Tensor:
+        return decorrelation_loss(rff, n_all * torch.softmax(torch.cat([t, memory_logits]), dim=0), probs)
+
+    start = loss(theta).detach()
+    for _ in range(iters):
+        own = torch.softmax(theta, dim=0)
+        objective = loss(theta) / start + penalty * (n * own.square().sum() - 1)
+        optimizer.zero_grad()
+        objective.backward()
+        optimizer.step()
+    return n * torch.softmax(theta.detach(), dim=0)
+
+
+@pytest.mark.parametrize("kwargs", [{}, {"lr": 1.0, "iters": 20}, {"ess_penalty": 0.0}])
+def test_solver_takes_the_steps_of_autograd_and_torch_sgd(kwargs):
+    batch = make_domain_batch(d=8, seed=7)
+    weights = learn_sample_weights(batch.z, top_probs(batch), generator=seeded(3), **kwargs)
+    expected = reference_solver(batch.z, top_probs(batch), seed=3, **kwargs)
+    torch.testing.assert_close(weights, expected, rtol=1e-4, atol=1e-4)
+    assert not torch.allclose(weights, torch.ones(128), atol=1e-2)
+
+
+def test_memory_joins_the_loss_with_fixed_logits_and_then_moves_towards_the_batch():
+    first, second = make_domain_batch(d=8, seed=1), make_domain_batch(d=8, seed=2)
+    memory = WeightMemory(momentum=0.9)
+    learn_sample_weights(first.z, top_probs(first), generator=seeded(0), memory=memory)
+    assert memory.updates == 1
+    stored_z, stored_logits = memory.features.clone(), memory.logits.clone()
+    torch.testing.assert_close(stored_z, 0.5 * (first.z - first.z.mean(0)) / first.z.std(0))
+    # the second solve decorrelates against the first batch's features under their logits
+    weights = learn_sample_weights(second.z, top_probs(second), generator=seeded(1), memory=memory)
+    expected = reference_solver(second.z, top_probs(second), seed=1, memory=(stored_z, stored_logits))
+    torch.testing.assert_close(weights, expected, rtol=1e-4, atol=1e-4)
+    without = learn_sample_weights(second.z, top_probs(second), generator=seeded(1))
+    assert not torch.allclose(weights, without, atol=1e-3)
+    # a running mean for the first updates (here: the mean of the two batches), then momentum 0.9
+    second_z = 0.5 * (second.z - second.z.mean(0)) / second.z.std(0)
+    torch.testing.assert_close(memory.features, (stored_z + second_z) / 2)
+    for seed in range(3, 15):
+        learn_sample_weights(second.z, top_probs(second), generator=seeded(seed), memory=memory)
+    before = memory.features.clone()
+    learn_sample_weights(first.z, top_probs(first), generator=seeded(99), memory=memory)
+    first_z = 0.5 * (first.z - first.z.mean(0)) / first.z.std(0)
+    torch.testing.assert_close(memory.features, 0.9 * before + 0.1 * first_z)
+    # a batch of another size starts the memory afresh; the state round-trips
+    learn_sample_weights(first.z[:64], generator=seeded(0), memory=memory)
+    assert memory.updates == 1 and memory.features.shape == (64, 8)
+    copy = WeightMemory()
+    copy.load_state_dict(memory.state_dict())
+    assert copy.updates == 1 and torch.equal(copy.logits, memory.logits)
+    with pytest.raises(ValueError, match="memory momentum must be a number in"):
+        WeightMemory(1.0)
 
 
 # --- effective_sample_size and weighted_pearson ---
