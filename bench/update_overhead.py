@@ -1,14 +1,24 @@
 """
-Cost of one gradient step of SGFD_SAC next to SB3's SAC: same CnnPolicy (the paper's encoder, 1024-wide
-heads), batch 128, 9x84x84 observations (3 stacked 84x84 frames of SGFD/walker-walk-v0), one replay
-buffer of real transitions from the 4 training domains. Steps are interleaved (SAC, SGFD, SAC, ...)
-so both see the same machine load; the script prints medians and their ratio.
+Cost of one gradient step of SGFD_SAC next to SB3's SAC, with the same policy, batch and replay data.
 
-SGFD is timed in its steady state (classifier past its accuracy threshold: encode, saliency, weight
-solver, weighted losses) and, separately, while its classifier trains (up to 10 extra batches per step,
-a short phase of a run).
+Two policies:
 
-    python bench/update_overhead.py [--steps 15] [--batch-size 128]
+- ``mlp``: MlpPolicy [256, 256] on SGFD/MT-walker-walk-v0 states with ``observe_parameter=True`` (25-d: the
+  domain is visible in the observation, as the quick configuration and the CPU study train it);
+- ``cnn``: CnnPolicy (the paper's encoder, 1024-wide heads) on 9x84x84 observations (3 stacked 84x84 frames
+  of SGFD/walker-walk-v0).
+
+SGFD is timed in three phases: ``steady`` (weights on, the classifier above its threshold, so not training),
+``classifier`` (the classifier training every step, weights off: the start of a run) and ``mixed`` (weights
+on and the classifier training: whenever a batch's accuracy dips below the threshold, which in the quick job
+was most of a run). Both algorithms update the actor every step, so the ratio is SGFD's own cost. Each
+timed round is ``--round-steps`` gradient steps of every model in turn (SAC, SGFD steady, ...), so all see
+the same machine load; the script prints the median over rounds of the time per step, and the ratio to SAC.
+
+Runs on CUDA when it is available (``--device``), and prints the device.
+
+    python bench/update_overhead.py                       # both policies (CNN: about 3 min on 2 CPU cores)
+    python bench/update_overhead.py --policies mlp --rounds 30
 """
 
 from __future__ import annotations
@@ -16,23 +26,36 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from collections.abc import Callable
 
 import numpy as np
 import torch as th
 from stable_baselines3 import SAC
-from stable_baselines3.common.vec_env import VecFrameStack, VecTransposeImage
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecTransposeImage
 
 import sgfd_envs
-from sb3_sgfd import SGFD_SAC, CnnPolicy, DomainReplayBuffer
+from sb3_sgfd import SGFD_SAC, CnnPolicy, DomainReplayBuffer, MlpPolicy
+
+PHASES = ("steady", "classifier", "mixed")
 
 
-def pixel_env():
-    env = sgfd_envs.make_domain_vec_env("SGFD/walker-walk-v0", split="train")
-    return VecTransposeImage(VecFrameStack(env, 3))
+def state_env() -> VecEnv:
+    return sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", obs_type="state", observe_parameter=True)
 
 
-def fill(model, n_steps: int, seed: int) -> None:
-    """Random-action transitions, stored as SB3 stores them."""
+def pixel_env() -> VecEnv:
+    return VecTransposeImage(VecFrameStack(sgfd_envs.make_domain_vec_env("SGFD/walker-walk-v0"), 3))
+
+
+POLICIES: dict[str, tuple[type, Callable[[], VecEnv], dict]] = {
+    "mlp": (MlpPolicy, state_env, {"net_arch": [256, 256]}),
+    "cnn": (CnnPolicy, pixel_env, {}),
+}
+
+
+def fill(model: BaseAlgorithm, n_steps: int, seed: int) -> None:
+    """Random-action transitions of every domain, stored as SB3 stores them."""
     env = model.get_env()
     rng = np.random.default_rng(seed)
     obs = env.reset()
@@ -44,49 +67,87 @@ def fill(model, n_steps: int, seed: int) -> None:
         obs = next_obs
 
 
-def time_step(model, batch_size: int) -> float:
+def sgfd_in_phase(phase: str, policy: type, env: VecEnv, **common) -> SGFD_SAC:
+    """SGFD_SAC held in one phase: its accuracy threshold decides whether the classifier trains."""
+    model = SGFD_SAC(policy, env, actor_update_interval=1, classifier_start=0, **common)
+    # The bench holds the phase by hand: a threshold no accuracy reaches keeps the classifier training,
+    # one every accuracy reaches keeps it idle; classifier_ready says whether the weights are on.
+    model.accuracy_threshold = float("inf") if phase in ("classifier", "mixed") else 0.0
+    model.classifier_ready = phase in ("steady", "mixed")
+    return model
+
+
+def synchronize(device: th.device) -> None:
+    if device.type == "cuda":
+        th.cuda.synchronize(device)
+
+
+def time_round(model: BaseAlgorithm, steps: int, batch_size: int, device: th.device) -> float:
+    """Seconds per gradient step over ``steps`` steps."""
+    synchronize(device)
     start = time.perf_counter()
-    model.train(gradient_steps=1, batch_size=batch_size)
-    return time.perf_counter() - start
+    model.train(gradient_steps=steps, batch_size=batch_size)
+    synchronize(device)
+    return (time.perf_counter() - start) / steps
+
+
+def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> None:
+    policy, make_env, policy_kwargs = POLICIES[name]
+    common = dict(
+        buffer_size=10_000,
+        batch_size=args.batch_size,
+        learning_rate=1e-3,
+        tau=0.01,
+        seed=0,
+        device=device,
+        policy_kwargs=policy_kwargs,
+    )
+    models: dict[str, BaseAlgorithm] = {
+        "SAC": SAC(policy, make_env(), replay_buffer_class=DomainReplayBuffer, **common)
+    }
+    for phase in PHASES:
+        models[f"SGFD {phase}"] = sgfd_in_phase(phase, policy, make_env(), **common)
+    for model in models.values():
+        model._setup_learn(10**6)
+        fill(model, args.fill, seed=0)
+        time_round(model, 2, args.batch_size, device)  # warm-up: allocator, first classifier steps
+    steps = args.round_steps or (20 if name == "mlp" else 2)
+    times: dict[str, list[float]] = {key: [] for key in models}
+    for _ in range(args.rounds):
+        for key, model in models.items():
+            times[key].append(time_round(model, steps, args.batch_size, device))
+    steady = models["SGFD steady"]
+    assert isinstance(steady, SGFD_SAC) and "weight_ess" in steady._sgfd_stats, "SGFD did not reweight"
+    assert "weight_ess" not in models["SGFD classifier"]._sgfd_stats, "the classifier phase reweighted"
+
+    shape = models["SAC"].observation_space.shape
+    print(f"\n## {name}: obs {shape}, batch {args.batch_size}, {args.rounds} rounds of {steps} steps\n")
+    base = statistics.median(times["SAC"])
+    print(f"| {'update':<16} | {'ms per step':>11} | {'vs SAC':>6} |")
+    print(f"|{'-' * 18}|{'-' * 13}|{'-' * 8}|")
+    for key, values in times.items():
+        median = statistics.median(values)
+        print(f"| {key:<16} | {1e3 * median:>11.2f} | {median / base:>5.2f}x |")
+    ratios = ", ".join(f"{phase} {statistics.median(times[f'SGFD {phase}']) / base:.2f}x" for phase in PHASES)
+    print(f"SGFD / SAC ({name}): {ratios} (goal <= 1.2x)")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--steps", type=int, default=15, help="timed gradient steps per algorithm")
+    parser.add_argument("--policies", nargs="+", choices=list(POLICIES), default=list(POLICIES))
+    parser.add_argument("--rounds", type=int, default=15, help="timed rounds per model")
+    parser.add_argument("--round-steps", type=int, help="gradient steps per round (default: mlp 20, cnn 2)")
     parser.add_argument("--batch-size", type=int, default=128)
-    parser.add_argument("--fill", type=int, default=100, help="vec-env steps of data (x4 domains)")
+    parser.add_argument("--fill", type=int, default=300, help="vec-env steps of data (x4 domains)")
+    parser.add_argument("--device", default="auto", help="cpu, cuda, or auto (cuda when available)")
     args = parser.parse_args()
-
-    common = dict(buffer_size=10_000, batch_size=args.batch_size, learning_rate=1e-3, tau=0.01, seed=0)
-    sac = SAC(CnnPolicy, pixel_env(), replay_buffer_class=DomainReplayBuffer, **common)
-    # actor_update_interval=1 so both update actor and critic at every step: the ratio is SGFD's own cost.
-    steady = SGFD_SAC("CnnPolicy", pixel_env(), actor_update_interval=1, accuracy_threshold=1e-6, **common)
-    training = SGFD_SAC("CnnPolicy", pixel_env(), actor_update_interval=1, accuracy_threshold=1.0, **common)
-    for model in (sac, steady, training):
-        model.classifier_start = 0  # SGFD acts from the first step here
-        model._setup_learn(10**6)
-        fill(model, args.fill, seed=0)
-    print(f"obs {sac.observation_space.shape}, batch {args.batch_size}, torch threads {th.get_num_threads()}")
-
-    for model in (sac, steady, training):  # warm-up: allocator, first classifier steps
-        time_step(model, args.batch_size)
-    times: dict[str, list[float]] = {"SAC": [], "SGFD steady": [], "SGFD classifier training": []}
-    for _ in range(args.steps):
-        times["SAC"].append(time_step(sac, args.batch_size))
-        times["SGFD steady"].append(time_step(steady, args.batch_size))
-        times["SGFD classifier training"].append(time_step(training, args.batch_size))
-    assert steady.classifier_ready and "weight_ess" in steady._sgfd_stats, "SGFD did not reweight"
-
-    base = statistics.median(times["SAC"])
-    print(f"{'update':<28}{'median s/step':>14}{'vs SAC':>9}")
-    for name, values in times.items():
-        median = statistics.median(values)
-        print(f"{name:<28}{median:>14.3f}{median / base:>8.2f}x")
-    ess = statistics.mean(steady._sgfd_stats["weight_ess"])
-    print(
-        f"SGFD steady-state overhead: {statistics.median(times['SGFD steady']) / base:.3f}x SAC (goal <= 1.10); "
-        f"weight ESS {ess:.2f} n"
+    device = th.device(
+        "cuda" if args.device == "auto" and th.cuda.is_available() else args.device.replace("auto", "cpu")
     )
+    name = th.cuda.get_device_name(device) if device.type == "cuda" else f"CPU, {th.get_num_threads()} torch threads"
+    print(f"device: {device} ({name})")
+    for policy in args.policies:
+        bench_policy(policy, args, device)
 
 
 if __name__ == "__main__":

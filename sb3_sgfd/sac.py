@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Iterator
 from typing import Any, ClassVar
 
 import numpy as np
@@ -15,12 +16,11 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.sac import SAC
 from stable_baselines3.sac.policies import SACPolicy
-from torch.nn import functional as F
 
 from sb3_sgfd.buffers import DomainReplayBuffer, DomainReplayBufferSamples
 from sb3_sgfd.policies import CnnPolicy, MlpPolicy, SGFDPolicy
 from sb3_sgfd.reweighting import effective_sample_size, learn_sample_weights
-from sb3_sgfd.saliency import DomainClassifier, classifier_accuracy, feature_probabilities
+from sb3_sgfd.saliency import DomainClassifier, classifier_accuracy, feature_probabilities, train_classifier
 
 _SINGLE_DOMAIN_WARNING = (
     "SGFD_SAC sees a single domain, so there is nothing to decorrelate; it trains as plain SAC. Give it "
@@ -45,7 +45,9 @@ class SGFD_SAC(SAC):
     :param n_domains: Number of domain labels; ``None``: the envs' ``n_domains`` attribute or, if they have
         none, the number of sub-envs
     :param classifier_start: Env steps before the domain classifier starts training
-    :param classifier_iters: Most classifier updates per gradient step
+    :param classifier_iters: Most classifier updates per classifier round: the first on this batch's features
+        (already computed for the weights), the others on fresh replay batches (Algorithm 1: 10, every step)
+    :param classifier_interval: A classifier round every this many gradient steps (official code: every 20)
     :param accuracy_threshold: Classifier accuracy at which its training pauses and reweighting starts
     :param classifier_hidden_dim: Width of the classifier's two hidden layers
     :param classifier_lr: Adam learning rate of the classifier
@@ -102,7 +104,8 @@ class SGFD_SAC(SAC):
         actor_update_interval: int = 2,
         n_domains: int | None = None,
         classifier_start: int = 100_000,
-        classifier_iters: int = 10,
+        classifier_iters: int = 1,
+        classifier_interval: int = 1,
         accuracy_threshold: float = 0.9,
         classifier_hidden_dim: int = 128,
         classifier_lr: float = 1e-3,
@@ -121,7 +124,7 @@ class SGFD_SAC(SAC):
         _init_setup_model: bool = True,
     ):
         _check_positive_int(actor_update_interval=actor_update_interval, classifier_hidden_dim=classifier_hidden_dim)
-        _check_positive_int(n_rff=n_rff)
+        _check_positive_int(n_rff=n_rff, classifier_interval=classifier_interval)
         if classifier_start < 0 or classifier_iters < 0 or reweight_iters < 0:
             raise ValueError(
                 "classifier_start, classifier_iters and reweight_iters must be >= 0, got "
@@ -138,6 +141,7 @@ class SGFD_SAC(SAC):
         self.n_domains = n_domains
         self.classifier_start = classifier_start
         self.classifier_iters = classifier_iters
+        self.classifier_interval = classifier_interval
         self.accuracy_threshold = accuracy_threshold
         self.classifier_hidden_dim = classifier_hidden_dim
         self.classifier_lr = classifier_lr
@@ -341,9 +345,11 @@ class SGFD_SAC(SAC):
 
         z = self.encode(replay_data.observations)
         domains = self._checked_domains(replay_data.domains)
-        accuracy = classifier_accuracy(self.classifier, z, domains)
-        if accuracy < self.accuracy_threshold:
-            accuracy = self._train_classifier(batch_size)
+        if self.classifier_iters > 0 and update_index % self.classifier_interval == 0:
+            batches = self._classifier_batches(z, domains, batch_size)
+            accuracy, _ = train_classifier(self.classifier, self.classifier_optimizer, batches, self.accuracy_threshold)
+        else:
+            accuracy = classifier_accuracy(self.classifier, z, domains)
         self.classifier_ready = self.classifier_ready or accuracy >= self.accuracy_threshold
         self._record("classifier_accuracy", accuracy)
         if not self.classifier_ready or not (self.reweight_critic or self.reweight_actor):
@@ -351,11 +357,6 @@ class SGFD_SAC(SAC):
 
         self._rff_generator.manual_seed(self.rff_seed + update_index)
         weights, loss_before, loss_after = self.sample_weights(z, self._rff_generator, record=True)
-        if not th.isfinite(weights).all():
-            raise RuntimeError(
-                f"SGFD_SAC: the weight solver returned non-finite sample weights at update {update_index} "
-                f"(decorrelation loss {loss_before} -> {loss_after}); refusing to train on them"
-            )
         self._record("weight_ess", effective_sample_size(weights) / len(weights))
         self._record("weight_min", weights.min().item())
         self._record("weight_max", weights.max().item())
@@ -401,22 +402,14 @@ class SGFD_SAC(SAC):
         with th.no_grad():
             return self.critic.extract_features(observations, self.critic.features_extractor)
 
-    def _train_classifier(self, batch_size: int) -> float:
-        """Up to ``classifier_iters`` cross-entropy steps on fresh replay batches; returns the last accuracy."""
-        accuracy = 0.0
-        for _ in range(self.classifier_iters):
+    def _classifier_batches(
+        self, z: th.Tensor, domains: th.Tensor, batch_size: int
+    ) -> Iterator[tuple[th.Tensor, th.Tensor]]:
+        """This batch's features, then fresh replay batches: ``classifier_iters`` batches in all."""
+        yield z, domains
+        for _ in range(self.classifier_iters - 1):
             batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            z = self.encode(batch.observations)
-            domains = self._checked_domains(batch.domains)
-            logits = self.classifier(z)
-            accuracy = (logits.argmax(dim=1) == domains).float().mean().item()
-            if accuracy >= self.accuracy_threshold:
-                break
-            loss = F.cross_entropy(logits, domains)
-            self.classifier_optimizer.zero_grad()
-            loss.backward()
-            self.classifier_optimizer.step()
-        return accuracy
+            yield self.encode(batch.observations), self._checked_domains(batch.domains)
 
     def _checked_domains(self, domains: th.Tensor | None) -> th.Tensor:
         if domains is None:

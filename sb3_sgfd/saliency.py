@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 import torch
 from torch import Tensor, nn
+from torch.nn import functional as F
 
 
 def _check_features(z: Tensor, name: str = "z") -> None:
@@ -140,6 +142,38 @@ def feature_probabilities(
         m = m / m.max().clamp_min(torch.finfo(m.dtype).tiny)
     probs = torch.softmax(m / temperature, dim=0)
     return ((1 - smoothing) * probs + smoothing / probs.numel()).detach()
+
+
+def train_classifier(
+    classifier: nn.Module,
+    optimizer: torch.optim.Optimizer,
+    batches: Iterable[tuple[Tensor, Tensor]],
+    stop_accuracy: float | None = None,
+) -> tuple[float, int]:
+    """The domain classifier's training loop (Algorithm 1, lines 7-13): each batch is scored first, and the
+    loop stops at the first one classified with accuracy >= ``stop_accuracy``; otherwise one cross-entropy
+    step on it. Scoring before the step makes the accuracy a held-out estimate.
+
+    :param classifier: domain classifier, (n, d) -> (n, K) logits
+    :param optimizer: optimiser of the classifier's parameters
+    :param batches: (features (n, d), domain labels (n,)) pairs, e.g. detached encoder features
+    :param stop_accuracy: accuracy that ends training; None trains on every batch
+    :return: the accuracy of the last batch scored (0.0 if there was none) and the number of steps taken
+    """
+    accuracy, steps = 0.0, 0
+    for z, domains in batches:
+        _check_features(z)
+        _check_domains(domains, z.shape[0])
+        logits = classifier(z)
+        accuracy = (logits.argmax(dim=1) == domains).float().mean().item()
+        if stop_accuracy is not None and accuracy >= stop_accuracy:
+            break
+        loss = F.cross_entropy(logits, domains)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        steps += 1
+    return accuracy, steps
 
 
 def classifier_accuracy(classifier: nn.Module, z: Tensor, domains: Tensor) -> float:

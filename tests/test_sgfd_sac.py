@@ -16,11 +16,13 @@ TINY = dict(
 
 
 def state_env(n_envs: int | None = None):
-    return sgfd_envs.make_domain_vec_env(ENV_ID, split="train", n_envs=n_envs, obs_type="state")
+    # The torso length in the state: the domain classifier can tell the domains apart within a few updates.
+    return sgfd_envs.make_domain_vec_env(ENV_ID, split="train", n_envs=n_envs, obs_type="state", observe_parameter=True)
 
 
 def reweighting_model(**kwargs) -> SGFD_SAC:
-    settings = dict(TINY, classifier_start=200, classifier_hidden_dim=32)
+    # Algorithm 1's ten classifier updates per step, so that the tiny runs reach the accuracy threshold.
+    settings = dict(TINY, classifier_start=200, classifier_hidden_dim=32, classifier_iters=10)
     settings.update(kwargs)
     return SGFD_SAC("MlpPolicy", state_env(), **settings)
 
@@ -76,6 +78,21 @@ def test_learns_on_the_training_domains_and_its_weights_leave_one():
     assert 0 <= stats["top_saliency_feature"][-1] < model.critic.features_extractor.features_dim
     logged = model.logger.name_to_value
     assert {"sgfd/classifier_accuracy", "sgfd/weight_ess", "sgfd/decorrelation_loss_after"} <= set(logged)
+
+
+def test_by_default_the_classifier_trains_on_the_batch_features_every_classifier_interval_steps():
+    model = reweighting_model(classifier_iters=1, classifier_interval=3, accuracy_threshold=1.0)
+    samples = []
+    sample = model.replay_buffer.sample
+    model.replay_buffer.sample = lambda *args, **kwargs: samples.append(1) or sample(*args, **kwargs)
+    steps = []
+    optimizer_step = model.classifier_optimizer.step
+    model.classifier_optimizer.step = lambda *args, **kwargs: steps.append(1) or optimizer_step(*args, **kwargs)
+    model.learn(600)
+    # one replay batch per gradient step (the SAC update's), a classifier step on every third
+    updates_after_start = model._n_updates - (200 - TINY["learning_starts"]) // 4
+    assert len(samples) == model._n_updates
+    assert abs(len(steps) - updates_after_start / 3) <= 2 and steps
 
 
 def test_sample_weights_follow_the_saliency_settings():

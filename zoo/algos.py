@@ -36,6 +36,8 @@ SGFD_ALGOS: dict[str, ZooAlgo] = {
     "sac": ZooAlgo(SAC, "DR", "sac"),
     "sgfd_sac_no_rff": ZooAlgo(SGFD_SAC, "SGFD w/o RFF", "sgfd_sac", {"use_rff": False}),
     "sgfd_sac_no_saliency": ZooAlgo(SGFD_SAC, "SGFD w/o saliency", "sgfd_sac", {"use_saliency": False}),
+    # Algorithm 1 (line 18 updates Q with the unweighted eq. 1) and the official code weight the actor only.
+    "sgfd_sac_actor_only": ZooAlgo(SGFD_SAC, "SGFD actor-only", "sgfd_sac", {"reweight_critic": False}),
 }
 
 
