@@ -28,6 +28,8 @@ class DomainReplayBufferSamples(NamedTuple):
     rewards: th.Tensor
     discounts: th.Tensor | None = None
     domains: th.Tensor | None = None
+    # With same_episode_negatives: for each sample i, an observation o_j of the same episode with |j - i| >= 2
+    same_episode_observations: th.Tensor | None = None
 
 
 class DomainReplayBuffer(ReplayBuffer):
@@ -50,6 +52,19 @@ class DomainReplayBuffer(ReplayBuffer):
     In that mode ``observations`` and ``next_observations`` are empty placeholders (so that SB3's memory
     check does not count, nor the buffer hold, full stacks); the frames are in ``frames``.
 
+    Episodes are tracked at every add: ``episodes[slot, env]`` is the id of the episode of the transition
+    stored there. An env's episode ends with an add where its ``done`` is true (SB3 passes terminated or
+    truncated); its next add starts a new one. With ``same_episode_negatives=True`` every sample also holds
+    ``same_episode_observations``: for each sample i, the observation o_j stored at a slot j of the same
+    episode with |j - i| >= 2 (neither o_{i-1}, o_i nor o_{i+1}, the next observation of i), drawn uniformly
+    among the stored, sampleable ones, as TED's same-episode negatives (Dunion et al., ICLR 2023). Where the
+    episode has no such slot (at most three of its transitions stored and sampleable, i among the middle ones),
+    o_j is drawn uniformly from the sampleable transitions of all other episodes: still a pair that is not
+    consecutive. Where there is none either (the buffer holds nothing else), sampling raises ``ValueError``.
+    Each draw costs O(1), from the episode's first and last add index; the buffer is never scanned. A run
+    resumed with a fresh env and no ``done`` in between counts as one episode: its pairs are still never
+    consecutive ones.
+
     :param buffer_size: Max number of transitions (over all envs)
     :param observation_space: Observation space
     :param action_space: Action space
@@ -60,9 +75,14 @@ class DomainReplayBuffer(ReplayBuffer):
     :param handle_timeout_termination: Treat time-limit truncation as non-terminal
     :param frame_stack: Number of frames stacked in each observation, to store each frame once;
         ``None`` stores the observations as they are
+    :param same_episode_negatives: Also return, with each sample, a non-adjacent observation of its episode
+        (``same_episode_observations``), drawn with the buffer's own numpy generator (seeded once from
+        ``np.random`` at construction)
     """
 
     domains: np.ndarray
+    episodes: np.ndarray
+    same_episode_negatives: bool
     frame_stack: int | None
     frames: np.ndarray
     history: np.ndarray
@@ -79,7 +99,10 @@ class DomainReplayBuffer(ReplayBuffer):
         optimize_memory_usage: bool = False,
         handle_timeout_termination: bool = True,
         frame_stack: int | None = None,
+        same_episode_negatives: bool = False,
     ):
+        if not isinstance(same_episode_negatives, (bool, np.bool_)):
+            raise ValueError(f"same_episode_negatives must be a bool, got {same_episode_negatives!r}")
         self.frame_stack = _check_frame_stack(frame_stack, observation_space, optimize_memory_usage)
         # With frame_stack the parent gets a zero-size observation space, so that neither its
         # allocation nor its memory warning concerns full stacks; the real space is put back below.
@@ -94,15 +117,93 @@ class DomainReplayBuffer(ReplayBuffer):
             handle_timeout_termination=handle_timeout_termination,
         )
         self.domains = np.zeros((self.buffer_size, self.n_envs), dtype=np.int64)
+        # Before the frame storage: its memory check counts these arrays too.
+        self._init_episode_tracking()
         if self.frame_stack is not None:
             self.observation_space = observation_space
             self.obs_shape = get_obs_shape(observation_space)  # type: ignore[assignment]
             self._init_frame_storage(observation_space)  # type: ignore[arg-type]
+        self.same_episode_negatives = bool(same_episode_negatives)
+        # Seeded from the global RNG only when used, so that a buffer without it leaves the global stream (and
+        # thus every batch) exactly as before; later draws never touch the global RNG.
+        self._negatives_rng = (
+            np.random.default_rng(np.random.randint(2**31 - 1)) if self.same_episode_negatives else None
+        )
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         # Buffers pickled before frame_stack existed stored observations as they are.
         state.setdefault("frame_stack", None)
+        # Buffers pickled before episode tracking existed: no negatives, episodes rebuilt from the done flags.
+        state.setdefault("same_episode_negatives", False)
+        state.setdefault("_negatives_rng", None)
         self.__dict__.update(state)
+        if "episodes" not in state:
+            self._rebuild_episodes()
+
+    def _init_episode_tracking(self) -> None:
+        """Allocate the episode bookkeeping, for an empty buffer."""
+        # episodes[slot, env]: id of the episode of the transition stored at (slot, env)
+        self.episodes = np.zeros((self.buffer_size, self.n_envs), dtype=np.int64)
+        # Add index (counted over the buffer's life, through resets) of the first and last transition of each
+        # episode, by id; the arrays double when full, so that an add costs O(n_envs).
+        self._episode_first = np.zeros(16, dtype=np.int64)
+        self._episode_last = np.zeros(16, dtype=np.int64)
+        self._n_episodes = 0
+        # Add index of the next add: the transition added at index t sits in slot (t - _n_adds + pos) % buffer_size.
+        self._n_adds = 0
+        self._current_episode = np.zeros(self.n_envs, dtype=np.int64)
+        # False where the env's last add ended its episode (or none came yet): its next add starts one.
+        self._episode_open = np.zeros(self.n_envs, dtype=bool)
+
+    def _track_episodes(self, slot: int, done: np.ndarray) -> None:
+        """
+        Record the transitions just written to ``slot`` in the episode bookkeeping.
+
+        :param slot: The slot written by this add
+        :param done: Done flag of each env, shape (n_envs,), bool
+        """
+        starting = np.flatnonzero(~self._episode_open)
+        if len(starting) > 0:
+            n_episodes = self._n_episodes + len(starting)
+            if n_episodes > len(self._episode_first):
+                capacity = max(n_episodes, 2 * len(self._episode_first))
+                self._episode_first = _grown(self._episode_first, capacity)
+                self._episode_last = _grown(self._episode_last, capacity)
+            ids = np.arange(self._n_episodes, n_episodes)
+            self._episode_first[ids] = self._n_adds
+            self._current_episode[starting] = ids
+            self._n_episodes = n_episodes
+        self._episode_last[self._current_episode] = self._n_adds
+        self.episodes[slot] = self._current_episode
+        self._episode_open = ~done
+        self._n_adds += 1
+
+    def _rebuild_episodes(self) -> None:
+        """Episode bookkeeping of a buffer pickled without it, from the stored done flags (one vectorised pass)."""
+        self._init_episode_tracking()
+        n_stored = self.buffer_size if self.full else self.pos
+        if n_stored == 0:
+            return
+        chronological = (self.pos - n_stored + np.arange(n_stored)) % self.buffer_size
+        ended = self.dones[chronological] != 0
+        # The oldest stored transition of each column starts an episode (as far as the buffer knows).
+        starts = np.ones_like(ended)
+        starts[1:] = ended[:-1]
+        # Ids numbered column after column; cumsum flattens starts.T row by row, i.e. one env after the other.
+        ids = (np.cumsum(starts.T) - 1).reshape(self.n_envs, n_stored).T
+        n_episodes = int(ids[-1, -1]) + 1
+        rows = np.broadcast_to(np.arange(n_stored)[:, None], ids.shape)
+        capacity = max(n_episodes, len(self._episode_first))
+        self._episode_first = np.zeros(capacity, dtype=np.int64)
+        self._episode_last = np.zeros(capacity, dtype=np.int64)
+        self._episode_first[ids[starts]] = rows[starts]
+        np.maximum.at(self._episode_last, ids.ravel(), rows.ravel())
+        self._n_episodes = n_episodes
+        # Add indices count from the oldest stored transition: row r of `chronological` was added at index r.
+        self._n_adds = n_stored
+        self.episodes[chronological] = ids
+        self._current_episode = ids[-1].copy()
+        self._episode_open = ~ended[-1]
 
     def _init_frame_storage(self, observation_space: spaces.Box) -> None:
         """
@@ -151,16 +252,19 @@ class DomainReplayBuffer(ReplayBuffer):
         infos: list[dict[str, Any]],
     ) -> None:
         labels = domain_labels(infos)
+        ended = np.asarray(done)
+        if ended.size != self.n_envs:
+            raise ValueError(f"done must hold one flag per env ({self.n_envs}), got shape {ended.shape}")
+        ended = ended.reshape(self.n_envs) != 0
         if self.frame_stack is None:
-            # Written before super().add() because that call advances self.pos.
-            self.domains[self.pos] = labels
+            # Read before super().add() because that call advances self.pos.
+            slot = self.pos
+            self.domains[slot] = labels
             super().add(obs, next_obs, action, reward, done, infos)
+            self._track_episodes(slot, ended)
             return
 
         obs, next_obs = self._as_stacks(obs, "obs"), self._as_stacks(next_obs, "next_obs")
-        done = np.asarray(done)
-        if done.size != self.n_envs:
-            raise ValueError(f"done must hold one flag per env ({self.n_envs}), got shape {done.shape}")
         continuing = self._check_stacks(obs, next_obs)
 
         slot = self.pos
@@ -183,8 +287,9 @@ class DomainReplayBuffer(ReplayBuffer):
         self.history[slot] = history
         self._last_history[:] = history
         self._last_next_obs[:] = next_obs
-        self._last_done[:] = done.reshape(self.n_envs) != 0
+        self._last_done[:] = ended
         self._last_slot = slot
+        self._track_episodes(slot, ended)
 
     def _as_stacks(self, stacks: np.ndarray, name: str) -> np.ndarray:
         """
@@ -229,6 +334,8 @@ class DomainReplayBuffer(ReplayBuffer):
 
     def reset(self) -> None:
         super().reset()
+        # The episode bookkeeping is kept: an episode may go on after a reset. Add indices keep counting, so
+        # that the stored part of every episode stays known.
         if self.frame_stack is not None:
             self.side_frames.clear()
             self.has_side_frame[:] = False
@@ -238,8 +345,10 @@ class DomainReplayBuffer(ReplayBuffer):
 
     def is_sampleable(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> np.ndarray:
         """
-        Whether each (slot, env) pair holds a transition that can be sampled: it is stored and, with
-        ``frame_stack``, all the frames of its observation stack are still stored.
+        Whether each (slot, env) pair holds a transition that can be sampled: it is stored, with
+        ``frame_stack`` all the frames of its observation stack are still stored, and with
+        ``optimize_memory_usage`` its observation is (once full, slot ``pos`` holds the newest next_obs
+        instead: SB3's ``sample`` never draws it).
 
         :param batch_inds: Slots
         :param env_indices: Env indices, same shape as ``batch_inds``
@@ -250,6 +359,8 @@ class DomainReplayBuffer(ReplayBuffer):
             raise ValueError(f"env_indices must have batch_inds' shape {batch_inds.shape}, got {env_indices.shape}")
         upper = self.buffer_size if self.full else self.pos
         in_range = (batch_inds >= 0) & (batch_inds < upper) & (env_indices >= 0) & (env_indices < self.n_envs)
+        if self.optimize_memory_usage and self.full:
+            in_range &= batch_inds != self.pos
         if self.frame_stack is None or not in_range.any():
             return in_range
         slots, envs = np.where(in_range, batch_inds, 0), np.where(in_range, env_indices, 0)
@@ -305,10 +416,159 @@ class DomainReplayBuffer(ReplayBuffer):
             self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env),
         )
         copies = (copy_obs, True, copy_obs, True, True)
+        same_episode_obs = None
+        if self.same_episode_negatives:
+            other_slots, other_envs = self._same_episode_indices(batch_inds, env_indices)
+            # A gather (or a rebuilt stack) is a new array: no copy needed.
+            same_episode_obs = self.to_torch(
+                self._normalize_obs(self._observations_at(other_slots, other_envs), env), copy=False
+            )
         return DomainReplayBufferSamples(
             *(self.to_torch(array, copy=copy) for array, copy in zip(data, copies, strict=True)),
             domains=self.to_torch(self.domains[batch_inds, env_indices]),
+            same_episode_observations=same_episode_obs,
         )
+
+    def episode_ids(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> np.ndarray:
+        """
+        Id of the episode of each stored transition; two transitions share an episode iff they share its id.
+
+        :param batch_inds: Slots
+        :param env_indices: Env indices, same shape as ``batch_inds``
+        :return: int64 array of that shape
+        """
+        batch_inds, env_indices = np.asarray(batch_inds), np.asarray(env_indices)
+        if batch_inds.shape != env_indices.shape:
+            raise ValueError(f"env_indices must have batch_inds' shape {batch_inds.shape}, got {env_indices.shape}")
+        upper = self.buffer_size if self.full else self.pos
+        stored = (batch_inds >= 0) & (batch_inds < upper) & (env_indices >= 0) & (env_indices < self.n_envs)
+        if not stored.all():
+            bad = np.flatnonzero(~stored.ravel())[:5]
+            pairs = list(zip(batch_inds.ravel()[bad].tolist(), env_indices.ravel()[bad].tolist(), strict=True))
+            raise ValueError(f"(batch_inds, env_indices) pairs {pairs} hold no stored transition")
+        return self.episodes[batch_inds, env_indices].copy()
+
+    def observations_at(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> np.ndarray:
+        """
+        The observations stored at sampleable (slot, env) pairs; with ``frame_stack``, their whole stacks.
+
+        :param batch_inds: Slots, shape (n,)
+        :param env_indices: Env indices, shape (n,)
+        :return: New array of shape (n, *obs_shape), not normalized
+        """
+        batch_inds, env_indices = np.asarray(batch_inds), np.asarray(env_indices)
+        if batch_inds.ndim != 1:
+            raise ValueError(f"batch_inds must be one-dimensional, got shape {batch_inds.shape}")
+        sampleable = self.is_sampleable(batch_inds, env_indices)
+        if not sampleable.all():
+            bad = np.flatnonzero(~sampleable)[:5]
+            pairs = list(zip(batch_inds[bad].tolist(), env_indices[bad].tolist(), strict=True))
+            raise ValueError(f"(batch_inds, env_indices) pairs {pairs} hold no sampleable transition")
+        return self._observations_at(batch_inds, env_indices)
+
+    def _observations_at(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> np.ndarray:
+        """``observations_at`` without the checks, for pairs known to be sampleable."""
+        if self.frame_stack is None:
+            return self.observations[batch_inds, env_indices]
+        # As _rebuild_stacks does for obs: the frames k - 1, ..., 0 slots back, zeros before the episode start.
+        offsets = np.arange(self.frame_stack - 1, -1, -1)
+        slots = (batch_inds[:, None] - offsets) % self.buffer_size
+        stacks = self.frames[slots, env_indices[:, None]]
+        padding = offsets > self.history[batch_inds, env_indices][:, None].astype(np.intp)
+        if padding.any():
+            stacks[padding] = 0
+        return stacks.reshape((len(batch_inds), *self.obs_shape))
+
+    def _add_indices(self, slots: np.ndarray) -> np.ndarray:
+        """Add index of the transitions stored in ``slots`` (the newest sits at pos - 1, and so on back)."""
+        return self._n_adds - 1 - (self.pos - 1 - slots) % self.buffer_size
+
+    def _slots(self, add_indices: np.ndarray) -> np.ndarray:
+        """Slot of the stored transitions added at ``add_indices``."""
+        return (add_indices - self._n_adds + self.pos) % self.buffer_size
+
+    def _first_sampleable(self) -> np.ndarray:
+        """
+        For each env, the add index of its oldest sampleable transition (``_n_adds`` if it has none).
+
+        A column's sampleable transitions are all its stored ones from that index on: a stack's history grows by
+        at most one per add, so (stored transitions older than it) - (its history) never decreases along the
+        column. Only the oldest k - 1 may miss frames (and with optimize_memory_usage the oldest one lost its
+        observation), so the first k + 1 stored slots decide.
+        """
+        end = self._n_adds
+        n_stored = self.buffer_size if self.full else self.pos
+        window = min(n_stored, (self.frame_stack or 1) + 1)
+        if window == 0:
+            return np.full(self.n_envs, end, dtype=np.int64)
+        candidates = end - n_stored + np.arange(window)
+        shape = (window, self.n_envs)
+        sampleable = self.is_sampleable(
+            np.broadcast_to(self._slots(candidates)[:, None], shape), np.broadcast_to(np.arange(self.n_envs), shape)
+        )
+        return np.where(sampleable.any(axis=0), candidates[sampleable.argmax(axis=0)], end)
+
+    def _same_episode_indices(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Slot and env of the same-episode observation o_j of each sample i (see the class docstring), O(batch).
+
+        :param batch_inds: Slots of the samples
+        :param env_indices: Envs of the samples
+        :return: Slots and envs of the observations, each of shape (batch,)
+        """
+        assert self._negatives_rng is not None
+        rng = self._negatives_rng
+        first_sampleable = self._first_sampleable()
+        i = self._add_indices(batch_inds)
+        episode = self.episodes[batch_inds, env_indices]
+        # The episode's sampleable transitions: add indices low..high (its column's are a suffix, its own a run).
+        low = np.maximum(self._episode_first[episode], first_sampleable[env_indices])
+        high = self._episode_last[episode]
+        n_episode = np.maximum(high - low + 1, 0)
+        # i - 1, i, i + 1, clipped to [low, high], are excluded: draw among the others, then step over them.
+        excluded_low = np.maximum(low, i - 1)
+        n_excluded = np.maximum(np.minimum(high, i + 1) - excluded_low + 1, 0)
+        n_allowed = n_episode - n_excluded
+        j = low + rng.integers(0, np.maximum(n_allowed, 1))
+        j = np.where(j >= excluded_low, j + n_excluded, j)
+        envs = env_indices.copy()
+        fallback = np.flatnonzero(n_allowed <= 0)
+        if len(fallback) > 0:
+            j[fallback], envs[fallback] = self._other_episode_indices(
+                first_sampleable, env_indices[fallback], low[fallback], n_episode[fallback]
+            )
+        return self._slots(j), envs
+
+    def _other_episode_indices(
+        self, first_sampleable: np.ndarray, env_indices: np.ndarray, low: np.ndarray, n_episode: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Add index and env of a transition drawn uniformly among all sampleable ones outside a given episode.
+
+        The sampleable transitions are numbered column after column (each column's a run of add indices); the
+        episode's are one run of that numbering, which the draw steps over.
+
+        :param first_sampleable: ``_first_sampleable()``
+        :param env_indices: Env of each episode
+        :param low: Add index of each episode's oldest sampleable transition
+        :param n_episode: Number of each episode's sampleable transitions
+        :return: Add indices and envs, each of shape (len(env_indices),)
+        """
+        assert self._negatives_rng is not None
+        counts = self._n_adds - first_sampleable
+        ends = np.cumsum(counts)
+        starts = ends - counts
+        n_others = ends[-1] - n_episode
+        if (n_others <= 0).any():
+            raise ValueError(
+                "same_episode_negatives: a sample's episode has no transition two steps or more away from it, "
+                "and the buffer holds no sampleable transition of another episode to use instead"
+            )
+        flat = self._negatives_rng.integers(0, n_others)
+        episode_start = starts[env_indices] + low - first_sampleable[env_indices]
+        flat = np.where(flat >= episode_start, flat + n_episode, flat)
+        envs = np.searchsorted(ends, flat, side="right")
+        return first_sampleable[envs] + flat - starts[envs], envs
 
     def _redraw_unsampleable(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """
@@ -374,6 +634,7 @@ class DomainReplayBuffer(ReplayBuffer):
     def storage_nbytes(self) -> int:
         """Bytes held by the buffer's storage: its arrays, plus, with ``frame_stack``, the side frames."""
         arrays = [self.actions, self.rewards, self.dones, self.timeouts, self.domains, self.observations]
+        arrays += [self.episodes, self._episode_first, self._episode_last]
         if not self.optimize_memory_usage:
             arrays.append(self.next_observations)
         if self.frame_stack is not None:
@@ -389,6 +650,13 @@ class DomainReplayBuffer(ReplayBuffer):
 
 # Observation space handed to ReplayBuffer.__init__ with frame_stack: its arrays then take no memory.
 _EMPTY_SPACE = spaces.Box(low=0, high=0, shape=(0,), dtype=np.uint8)
+
+
+def _grown(array: np.ndarray, capacity: int) -> np.ndarray:
+    """``array`` followed by zeros up to ``capacity`` entries."""
+    grown = np.zeros(capacity, dtype=array.dtype)
+    grown[: len(array)] = array
+    return grown
 
 
 def _check_frame_stack(
