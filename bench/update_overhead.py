@@ -117,8 +117,8 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> None
         for key, model in models.items():
             times[key].append(time_round(model, steps, args.batch_size, device))
     steady = models["SGFD steady"]
-    assert isinstance(steady, SGFD_SAC) and "weight_ess" in steady._sgfd_stats, "SGFD did not reweight"
-    assert "weight_ess" not in models["SGFD classifier"]._sgfd_stats, "the classifier phase reweighted"
+    assert isinstance(steady, SGFD_SAC) and "sgfd/weight_ess" in steady._stats, "SGFD did not reweight"
+    assert "sgfd/weight_ess" not in models["SGFD classifier"]._stats, "the classifier phase reweighted"
 
     shape = models["SAC"].observation_space.shape
     print(f"\n## {name}: obs {shape}, batch {args.batch_size}, {args.rounds} rounds of {steps} steps\n")

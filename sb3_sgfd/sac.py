@@ -1,25 +1,21 @@
-"""SGFD_SAC: Soft Actor-Critic whose critic and actor losses are reweighted per sample by SGFD."""
+"""SGFD_SAC: SAC, on any encoder objective of EncoderSAC, with its losses reweighted per sample by SGFD."""
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Iterator
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.noise import ActionNoise
-from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
-from stable_baselines3.common.utils import polyak_update
-from stable_baselines3.sac import SAC
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_sgfd.buffers import DomainReplayBuffer, DomainReplayBufferSamples
-from sb3_sgfd.policies import CnnPolicy, MlpPolicy, SGFDPolicy
-from sb3_sgfd.reweighting import effective_sample_size, learn_sample_weights
+from sb3_sgfd.encoder_sac import EncoderSAC, check_positive_int
+from sb3_sgfd.reweighting import WeightMemory, learn_sample_weights
 from sb3_sgfd.saliency import DomainClassifier, classifier_accuracy, feature_probabilities, train_classifier
 
 _SINGLE_DOMAIN_WARNING = (
@@ -28,20 +24,25 @@ _SINGLE_DOMAIN_WARNING = (
 )
 
 
-class SGFD_SAC(SAC):
+class SGFD_SAC(EncoderSAC):
     """
     Soft Actor-Critic with Saliency-Guided Features Decorrelation (SGFD).
 
     At every gradient step the batch's encoder features z get sample weights w (mean 1, detached)
     that decorrelate the features a domain classifier finds changing across environments from the
     other features (random Fourier features, paper eqs. 3-6); w multiplies the per-sample critic and
-    actor losses (eq. 7). The domain classifier trains on (z, domain label) from replay batches once
+    actor losses (eq. 7). The domain classifier trains on (z, domain label) once
     ``num_timesteps >= classifier_start``, while its accuracy is below ``accuracy_threshold``
     (Algorithm 1); until it first reaches the threshold, w = 1 and this is SAC.
 
-    Defaults follow the paper's Tables 3-4. Takes the arguments of SB3's :class:`SAC`, plus:
+    The weights combine with any encoder objective of :class:`sb3_sgfd.encoder_sac.EncoderSAC`:
+    ``representation="ambs"`` (with ``policy="AMBSPolicy"``, two augmented views, ``encoder_tau=0.05``,
+    ``max_grad_norm=40``) is the paper's agent, AMBS plus the reweighting (appendix B); without one the encoder
+    learns from the critic loss alone.
 
-    :param actor_update_interval: Update the actor and entropy coefficient every this many gradient steps
+    Defaults follow the paper's Tables 3-4. Takes the arguments of :class:`EncoderSAC` (SB3's SAC's and the
+    encoder's), plus:
+
     :param n_domains: Number of domain labels; ``None``: the envs' ``n_domains`` attribute or, if they have
         none, the number of sub-envs
     :param classifier_start: Env steps before the domain classifier starts training
@@ -58,6 +59,8 @@ class SGFD_SAC(SAC):
     :param reweight_momentum: Momentum of the weight solver
     :param reweight_weight_decay: Weight decay of the weight solver
     :param reweight_ess_penalty: Penalty on n / ESS - 1 that keeps the weights from collapsing on few samples
+    :param reweight_memory: Momentum of a memory of past batches the solver also decorrelates against (the
+        official code's 0.9, see :class:`sb3_sgfd.reweighting.WeightMemory`); None: this batch only
     :param saliency_temperature: Temperature of the softmax over max-normalised saliency giving p(Z_i)
     :param saliency_smoothing: Weight of the uniform distribution mixed into p(Z_i) (see
         :func:`sb3_sgfd.saliency.feature_probabilities`)
@@ -66,12 +69,6 @@ class SGFD_SAC(SAC):
     :param reweight_critic: Apply the weights to the critic loss
     :param reweight_actor: Apply the weights to the actor loss
     """
-
-    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
-        "MlpPolicy": MlpPolicy,
-        "CnnPolicy": CnnPolicy,
-        "SGFDPolicy": SGFDPolicy,
-    }
 
     def __init__(
         self,
@@ -102,6 +99,12 @@ class SGFD_SAC(SAC):
         seed: int | None = None,
         device: th.device | str = "auto",
         actor_update_interval: int = 2,
+        encoder_tau: float | None = None,
+        augmentation_views: int = 0,
+        augmentation_pad: int = 4,
+        max_grad_norm: float | None = None,
+        representation: str | None = None,
+        representation_kwargs: dict[str, Any] | None = None,
         n_domains: int | None = None,
         classifier_start: int = 100_000,
         classifier_iters: int = 1,
@@ -115,6 +118,7 @@ class SGFD_SAC(SAC):
         reweight_momentum: float = 0.9,
         reweight_weight_decay: float = 1e-4,
         reweight_ess_penalty: float = 0.35,
+        reweight_memory: float | None = None,
         saliency_temperature: float = 0.1,
         saliency_smoothing: float = 0.3,
         use_rff: bool = True,
@@ -123,8 +127,9 @@ class SGFD_SAC(SAC):
         reweight_actor: bool = True,
         _init_setup_model: bool = True,
     ):
-        _check_positive_int(actor_update_interval=actor_update_interval, classifier_hidden_dim=classifier_hidden_dim)
-        _check_positive_int(n_rff=n_rff, classifier_interval=classifier_interval)
+        check_positive_int(
+            classifier_hidden_dim=classifier_hidden_dim, n_rff=n_rff, classifier_interval=classifier_interval
+        )
         if classifier_start < 0 or classifier_iters < 0 or reweight_iters < 0:
             raise ValueError(
                 "classifier_start, classifier_iters and reweight_iters must be >= 0, got "
@@ -137,7 +142,8 @@ class SGFD_SAC(SAC):
                 "replay_buffer_class must be DomainReplayBuffer or a subclass (SGFD needs the domain "
                 f"label of every transition), got {replay_buffer_class}"
             )
-        self.actor_update_interval = actor_update_interval
+        if reweight_memory is not None:
+            WeightMemory(reweight_memory)  # checks it
         self.n_domains = n_domains
         self.classifier_start = classifier_start
         self.classifier_iters = classifier_iters
@@ -151,6 +157,7 @@ class SGFD_SAC(SAC):
         self.reweight_momentum = reweight_momentum
         self.reweight_weight_decay = reweight_weight_decay
         self.reweight_ess_penalty = reweight_ess_penalty
+        self.reweight_memory = reweight_memory
         self.saliency_temperature = saliency_temperature
         self.saliency_smoothing = saliency_smoothing
         self.use_rff = use_rff
@@ -161,6 +168,7 @@ class SGFD_SAC(SAC):
         self.classifier_ready = False
         self.single_domain = False
         self.rff_seed: int | None = None
+        self.weight_memory: WeightMemory | None = None
         super().__init__(
             policy,
             env,
@@ -188,6 +196,13 @@ class SGFD_SAC(SAC):
             verbose=verbose,
             seed=seed,
             device=device,
+            actor_update_interval=actor_update_interval,
+            encoder_tau=encoder_tau,
+            augmentation_views=augmentation_views,
+            augmentation_pad=augmentation_pad,
+            max_grad_norm=max_grad_norm,
+            representation=representation,
+            representation_kwargs=representation_kwargs,
             _init_setup_model=_init_setup_model,
         )
 
@@ -210,140 +225,28 @@ class SGFD_SAC(SAC):
         # The RFF draw of update k is seeded from (rff_seed, k): reproducible, and the seed is all that
         # a checkpoint needs to continue the same sequence.
         if self.rff_seed is None:
-            self.rff_seed = int(np.random.default_rng(self.seed).integers(2**31))
+            # The third draw of the seed's stream: EncoderSAC's augmentation and objective take the first two.
+            self.rff_seed = int(np.random.default_rng(self.seed).integers(2**31, size=3)[2])
         self._rff_generator = th.Generator(device=self.device)
+        if self.reweight_memory is not None and self.weight_memory is None:
+            self.weight_memory = WeightMemory(self.reweight_memory)
 
-    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        # Switch to train mode (this affects batch norm / dropout)
-        self.policy.set_training_mode(True)
-        # Update optimizers learning rate
-        optimizers = [self.actor.optimizer, self.critic.optimizer]
-        if self.ent_coef_optimizer is not None:
-            optimizers += [self.ent_coef_optimizer]
-
-        # Update learning rate according to lr schedule
-        self._update_learning_rate(optimizers)
-
-        ent_coef_losses, ent_coefs = [], []
-        actor_losses, critic_losses = [], []
-        self._sgfd_stats: dict[str, list[float]] = {}
-
-        for gradient_step in range(gradient_steps):
-            # Sample replay buffer
-            replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            # For n-step replay, discount factor is gamma**n_steps (when no early termination)
-            discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
-            update_index = self._n_updates + gradient_step
-            # SGFD: per-sample weights of this batch, detached, mean 1 (Algorithm 1, lines 6-17)
-            weights = self._batch_weights(replay_data, batch_size, update_index)
-            critic_weights = weights if self.reweight_critic else th.ones_like(weights)
-            actor_weights = weights if self.reweight_actor else th.ones_like(weights)
-            # SGFD: the actor and the entropy coefficient learn every `actor_update_interval` steps
-            update_actor = update_index % self.actor_update_interval == 0
-
-            # We need to sample because `log_std` may have changed between two gradient steps
-            if self.use_sde:
-                self.actor.reset_noise()
-
-            if update_actor:
-                # Action by the current actor for the sampled state
-                actions_pi, log_prob = self.actor.action_log_prob(replay_data.observations)
-                log_prob = log_prob.reshape(-1, 1)
-
-            ent_coef_loss = None
-            if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
-                # Important: detach the variable from the graph
-                # so we don't change it with other losses
-                # see https://github.com/rail-berkeley/softlearning/issues/60
-                ent_coef = th.exp(self.log_ent_coef.detach())
-                assert isinstance(self.target_entropy, float)
-                if update_actor:
-                    ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
-                    ent_coef_losses.append(ent_coef_loss.item())
-            else:
-                ent_coef = self.ent_coef_tensor
-
-            ent_coefs.append(ent_coef.item())
-
-            # Optimize entropy coefficient, also called
-            # entropy temperature or alpha in the paper
-            if ent_coef_loss is not None and self.ent_coef_optimizer is not None:
-                self.ent_coef_optimizer.zero_grad()
-                ent_coef_loss.backward()
-                self.ent_coef_optimizer.step()
-
-            with th.no_grad():
-                # Select action according to policy
-                next_actions, next_log_prob = self.actor.action_log_prob(replay_data.next_observations)
-                # Compute the next Q values: min over all critics targets
-                next_q_values = th.cat(self.critic_target(replay_data.next_observations, next_actions), dim=1)
-                next_q_values, _ = th.min(next_q_values, dim=1, keepdim=True)
-                # add entropy term
-                next_q_values = next_q_values - ent_coef * next_log_prob.reshape(-1, 1)
-                # td error + entropy term
-                target_q_values = replay_data.rewards + (1 - replay_data.dones) * discounts * next_q_values
-
-            # Get current Q-values estimates for each critic network
-            # using action from the replay buffer
-            current_q_values = self.critic(replay_data.observations, replay_data.actions)
-
-            # SGFD: weighted critic loss, 0.5 * sum over critics of mean(w * (Q - y)^2)
-            critic_loss = 0.5 * sum(
-                (critic_weights * (current_q - target_q_values) ** 2).mean() for current_q in current_q_values
-            )
-            assert isinstance(critic_loss, th.Tensor)  # for type checker
-            critic_losses.append(_finite(critic_loss.item(), "critic loss", update_index))
-
-            # Optimize the critic
-            self.critic.optimizer.zero_grad()
-            critic_loss.backward()
-            self.critic.optimizer.step()
-
-            if update_actor:
-                # Min over all critic networks
-                q_values_pi = th.cat(self.critic(replay_data.observations, actions_pi), dim=1)
-                min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
-                # SGFD: weighted actor loss, mean(w * (alpha log pi - min Q)) (eq. 7)
-                actor_loss = (actor_weights * (ent_coef * log_prob - min_qf_pi)).mean()
-                actor_losses.append(_finite(actor_loss.item(), "actor loss", update_index))
-
-                # Optimize the actor
-                self.actor.optimizer.zero_grad()
-                actor_loss.backward()
-                self.actor.optimizer.step()
-
-            # Update target networks
-            if gradient_step % self.target_update_interval == 0:
-                polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
-                # Copy running stats, see GH issue #996
-                polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
-
-        self._n_updates += gradient_steps
-
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/ent_coef", np.mean(ent_coefs))
-        if len(actor_losses) > 0:
-            self.logger.record("train/actor_loss", np.mean(actor_losses))
-        self.logger.record("train/critic_loss", np.mean(critic_losses))
-        if len(ent_coef_losses) > 0:
-            self.logger.record("train/ent_coef_loss", np.mean(ent_coef_losses))
-        for key, values in self._sgfd_stats.items():
-            self.logger.record(f"sgfd/{key}", np.mean(values))
-
-    def _batch_weights(self, replay_data: DomainReplayBufferSamples, batch_size: int, update_index: int) -> th.Tensor:
+    def _batch_weights(
+        self, replay_data: DomainReplayBufferSamples, observations: th.Tensor, batch_size: int, update_index: int
+    ) -> tuple[th.Tensor | None, th.Tensor | None]:
         """
         Algorithm 1, lines 6-17: train the domain classifier while it is below the accuracy threshold,
-        then learn weights that decorrelate the batch's features. Returns (n, 1) weights, mean 1.
+        then learn weights that decorrelate the batch's features. Returns the (n, 1) weights, mean 1, of the
+        critic and of the actor (None where that loss is not reweighted, or before the classifier is ready).
         """
-        ones = th.ones((replay_data.rewards.shape[0], 1), device=self.device)
         if self.num_timesteps < self.classifier_start or self.single_domain:
-            return ones
+            return None, None
         if not self.classifier_ready and len(self.replay_buffer.stored_domains()) < 2:  # type: ignore[union-attr]
             warnings.warn(_SINGLE_DOMAIN_WARNING, stacklevel=2)
             self.single_domain = True
-            return ones
+            return None, None
 
-        z = self.encode(replay_data.observations)
+        z = self.encode(observations)
         domains = self._checked_domains(replay_data.domains)
         if self.classifier_iters > 0 and update_index % self.classifier_interval == 0:
             batches = self._classifier_batches(z, domains, batch_size)
@@ -351,18 +254,20 @@ class SGFD_SAC(SAC):
         else:
             accuracy = classifier_accuracy(self.classifier, z, domains)
         self.classifier_ready = self.classifier_ready or accuracy >= self.accuracy_threshold
-        self._record("classifier_accuracy", accuracy)
+        self.record("sgfd/classifier_accuracy", accuracy)
         if not self.classifier_ready or not (self.reweight_critic or self.reweight_actor):
-            return ones
+            return None, None
 
         self._rff_generator.manual_seed(self.rff_seed + update_index)
         weights, loss_before, loss_after = self.sample_weights(z, self._rff_generator, record=True)
-        self._record("weight_ess", effective_sample_size(weights) / len(weights))
-        self._record("weight_min", weights.min().item())
-        self._record("weight_max", weights.max().item())
-        self._record("decorrelation_loss_before", loss_before)
-        self._record("decorrelation_loss_after", loss_after)
-        return weights.reshape(-1, 1)
+        # Kish's effective sample size over n, as a tensor: figures stay on the device until train() logs them.
+        self.record("sgfd/weight_ess", weights.sum().square() / weights.square().sum() / len(weights))
+        self.record("sgfd/weight_min", weights.min())
+        self.record("sgfd/weight_max", weights.max())
+        self.record("sgfd/decorrelation_loss_before", loss_before)
+        self.record("sgfd/decorrelation_loss_after", loss_after)
+        weights = weights.reshape(-1, 1)
+        return (weights if self.reweight_critic else None), (weights if self.reweight_actor else None)
 
     def sample_weights(
         self, z: th.Tensor, generator: th.Generator | None = None, record: bool = False
@@ -373,7 +278,7 @@ class SGFD_SAC(SAC):
 
         :param z: (n, d) encoder features
         :param generator: seeds the random Fourier features
-        :param record: log the most salient feature
+        :param record: log the most salient feature (and update the memory of past batches, if any)
         :return: weights (n,) with mean 1, the decorrelation loss at uniform weights and at the weights
         """
         feature_probs = None
@@ -382,7 +287,7 @@ class SGFD_SAC(SAC):
                 self.classifier, z, temperature=self.saliency_temperature, smoothing=self.saliency_smoothing
             )
             if record:
-                self._record("top_saliency_feature", float(feature_probs.argmax()))
+                self.record("sgfd/top_saliency_feature", feature_probs.argmax())
         return learn_sample_weights(
             z,
             feature_probs,
@@ -393,14 +298,10 @@ class SGFD_SAC(SAC):
             weight_decay=self.reweight_weight_decay,
             ess_penalty=self.reweight_ess_penalty,
             use_rff=self.use_rff,
+            memory=self.weight_memory if record else None,
             generator=generator,
             return_losses=True,
         )
-
-    def encode(self, observations: th.Tensor) -> th.Tensor:
-        """The critic's encoder features z of a batch of (preprocessed) observations, without gradient."""
-        with th.no_grad():
-            return self.critic.extract_features(observations, self.critic.features_extractor)
 
     def _classifier_batches(
         self, z: th.Tensor, domains: th.Tensor, batch_size: int
@@ -409,7 +310,7 @@ class SGFD_SAC(SAC):
         yield z, domains
         for _ in range(self.classifier_iters - 1):
             batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            yield self.encode(batch.observations), self._checked_domains(batch.domains)
+            yield self.encode(self.augment(batch.observations)[0]), self._checked_domains(batch.domains)
 
     def _checked_domains(self, domains: th.Tensor | None) -> th.Tensor:
         if domains is None:
@@ -421,11 +322,8 @@ class SGFD_SAC(SAC):
             )
         return domains
 
-    def _record(self, key: str, value: float) -> None:
-        self._sgfd_stats.setdefault(key, []).append(value)
-
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "classifier", "classifier_optimizer", "_rff_generator", "_sgfd_stats"]
+        return [*super()._excluded_save_params(), "classifier", "classifier_optimizer", "_rff_generator"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, saved_pytorch_variables = super()._get_torch_save_params()
@@ -439,17 +337,3 @@ def _infer_n_domains(env: Any) -> int:
     except AttributeError:
         return env.num_envs
     return max(int(count) for count in counts)
-
-
-def _finite(value: float, what: str, update_index: int) -> float:
-    if not math.isfinite(value):
-        raise RuntimeError(
-            f"SGFD_SAC: non-finite {what} ({value}) at update {update_index}; stopping before it spreads"
-        )
-    return value
-
-
-def _check_positive_int(**values: int) -> None:
-    for name, value in values.items():
-        if not isinstance(value, (int, np.integer)) or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")

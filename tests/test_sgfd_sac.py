@@ -42,16 +42,25 @@ def test_with_unit_weights_it_is_sb3_sac_exactly():
 
 
 class ZeroWeights(SGFD_SAC):
-    """Every sample weighted 0: a weighted loss then has zero gradient."""
+    """Every sample weighted 0 from the first step: a weighted loss then has zero gradient."""
 
-    def _batch_weights(self, replay_data, batch_size, update_index):
-        return th.zeros((replay_data.rewards.shape[0], 1))
+    def _setup_model(self):
+        super()._setup_model()
+        self.classifier_ready = True
+
+    def sample_weights(self, z, generator=None, record=False):
+        return th.zeros(len(z)), 1.0, 0.0
 
 
 @pytest.mark.parametrize(("reweight_critic", "reweight_actor"), [(True, True), (False, True), (True, False)])
 def test_weights_multiply_the_critic_and_actor_losses(reweight_critic, reweight_actor):
     model = ZeroWeights(
-        "MlpPolicy", state_env(), reweight_critic=reweight_critic, reweight_actor=reweight_actor, **TINY
+        "MlpPolicy",
+        state_env(),
+        reweight_critic=reweight_critic,
+        reweight_actor=reweight_actor,
+        classifier_start=0,
+        **TINY,
     )
     critic = [p.clone() for p in model.critic.parameters()]
     actor = [p.clone() for p in model.actor.latent_pi.parameters()]
@@ -69,7 +78,7 @@ def test_weights_multiply_the_critic_and_actor_losses(reweight_critic, reweight_
 def test_learns_on_the_training_domains_and_its_weights_leave_one():
     model = reweighting_model()
     model.learn(600)
-    stats = model._sgfd_stats
+    stats = {key.removeprefix("sgfd/"): values for key, values in model._stats.items()}
     assert model.classifier_ready
     assert model.n_domains == 4
     assert stats["weight_min"][-1] < 1.0 < stats["weight_max"][-1]
@@ -137,7 +146,7 @@ def test_save_load_keeps_classifier_and_solver_and_continues(tmp_path):
     assert (loaded.classifier_ready, loaded.rff_seed, loaded.n_domains) == (True, model.rff_seed, 4)
     loaded.learn(300, reset_num_timesteps=False)
     assert loaded.num_timesteps == model.num_timesteps + 300
-    assert "weight_ess" in loaded._sgfd_stats
+    assert "sgfd/weight_ess" in loaded._stats
 
 
 def test_a_single_domain_warns_once_and_trains_as_sac():
@@ -147,7 +156,7 @@ def test_a_single_domain_warns_once_and_trains_as_sac():
         model.learn(300)
     assert len([w for w in record if "single domain" in str(w.message)]) == 1
     assert model.single_domain and not model.classifier_ready
-    assert "weight_ess" not in model._sgfd_stats
+    assert "sgfd/weight_ess" not in model._stats
 
 
 class NaNRewardAfter(gym.Wrapper):
