@@ -52,6 +52,9 @@ class EncoderSAC(SAC):
         over two (DrQ, AMBS; the actor sees the first)
     :param augmentation_pad: Pixels of edge-replicating padding before the random crop (DrQ: 4)
     :param max_grad_norm: Clip the gradient norm of the critic and of the actor to this; None: no clipping
+    :param ent_coef_lr: Adam learning rate of the entropy coefficient, fixed; None: ``learning_rate`` (SAC)
+        (DBC, AMBS, SGQN: 1e-4)
+    :param ent_coef_beta: Adam's first beta for the entropy coefficient (SAC: 0.9; DBC, AMBS, SGQN: 0.5)
     :param representation: An encoder objective registered in :mod:`sb3_sgfd.representation` ("dbc", "ambs",
         "ted", "sgqn"), or None
     :param representation_kwargs: Its hyperparameters
@@ -102,6 +105,8 @@ class EncoderSAC(SAC):
         augmentation_views: int = 0,
         augmentation_pad: int = 4,
         max_grad_norm: float | None = None,
+        ent_coef_lr: float | None = None,
+        ent_coef_beta: float = 0.9,
         representation: str | None = None,
         representation_kwargs: dict[str, Any] | None = None,
         _init_setup_model: bool = True,
@@ -115,6 +120,10 @@ class EncoderSAC(SAC):
             raise ValueError(f"encoder_tau must be None or in (0, 1], got {encoder_tau!r}")
         if max_grad_norm is not None and not (isinstance(max_grad_norm, (int, float)) and max_grad_norm > 0):
             raise ValueError(f"max_grad_norm must be None or a number > 0, got {max_grad_norm!r}")
+        if ent_coef_lr is not None and not (isinstance(ent_coef_lr, (int, float)) and ent_coef_lr > 0):
+            raise ValueError(f"ent_coef_lr must be None or a number > 0, got {ent_coef_lr!r}")
+        if not 0 <= ent_coef_beta < 1:
+            raise ValueError(f"ent_coef_beta must be in [0, 1), got {ent_coef_beta!r}")
         if self.fixed_representation is not None and representation != self.fixed_representation:
             raise ValueError(
                 f"{type(self).__name__} trains the {self.fixed_representation!r} representation, got "
@@ -125,6 +134,8 @@ class EncoderSAC(SAC):
         self.augmentation_views = augmentation_views
         self.augmentation_pad = augmentation_pad
         self.max_grad_norm = max_grad_norm
+        self.ent_coef_lr = ent_coef_lr
+        self.ent_coef_beta = ent_coef_beta
         self.representation = representation
         self.representation_kwargs = dict(representation_kwargs or {})
         super().__init__(
@@ -165,6 +176,9 @@ class EncoderSAC(SAC):
                 raise ValueError(f"the {self.representation!r} representation needs a DomainReplayBuffer")
             self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "same_episode_negatives": True}
         super()._setup_model()
+        if self.ent_coef_optimizer is not None and (self.ent_coef_lr is not None or self.ent_coef_beta != 0.9):
+            lr = self.lr_schedule(1) if self.ent_coef_lr is None else self.ent_coef_lr
+            self.ent_coef_optimizer = th.optim.Adam([self.log_ent_coef], lr=lr, betas=(self.ent_coef_beta, 0.999))
         if self.augmentation_views and not is_image_space(self.observation_space):
             raise ValueError(
                 f"augmentation_views={self.augmentation_views} shifts images, but the observations are "
@@ -207,7 +221,7 @@ class EncoderSAC(SAC):
         self.policy.set_training_mode(True)
         # Update optimizers learning rate
         optimizers = [self.actor.optimizer, self.critic.optimizer]
-        if self.ent_coef_optimizer is not None:
+        if self.ent_coef_optimizer is not None and self.ent_coef_lr is None:  # + unless its rate is its own
             optimizers += [self.ent_coef_optimizer]
 
         # Update learning rate according to lr schedule

@@ -40,8 +40,8 @@ class SGFD_SAC(EncoderSAC):
     ``max_grad_norm=40``) is the paper's agent, AMBS plus the reweighting (appendix B); without one the encoder
     learns from the critic loss alone.
 
-    Defaults follow the paper's Tables 3-4. Takes the arguments of :class:`EncoderSAC` (SB3's SAC's and the
-    encoder's), plus:
+    Defaults follow the paper's Tables 3-4. Takes the arguments of :class:`EncoderSAC` (SB3's SAC's, the
+    encoder's and the objective's), plus:
 
     :param n_domains: Number of domain labels; ``None``: the envs' ``n_domains`` attribute or, if they have
         none, the number of sub-envs
@@ -103,6 +103,8 @@ class SGFD_SAC(EncoderSAC):
         augmentation_views: int = 0,
         augmentation_pad: int = 4,
         max_grad_norm: float | None = None,
+        ent_coef_lr: float | None = None,
+        ent_coef_beta: float = 0.9,
         representation: str | None = None,
         representation_kwargs: dict[str, Any] | None = None,
         n_domains: int | None = None,
@@ -201,6 +203,8 @@ class SGFD_SAC(EncoderSAC):
             augmentation_views=augmentation_views,
             augmentation_pad=augmentation_pad,
             max_grad_norm=max_grad_norm,
+            ent_coef_lr=ent_coef_lr,
+            ent_coef_beta=ent_coef_beta,
             representation=representation,
             representation_kwargs=representation_kwargs,
             _init_setup_model=_init_setup_model,

@@ -25,6 +25,8 @@ import numpy as np
 BACKGROUND_SPLITS = ("train", "test")
 # Disjoint seed banks: a test texture is never a training one.
 PROCEDURAL_SEEDS: dict[str, tuple[int, ...]] = {"train": (0, 1, 2, 3), "test": (1000, 1001, 1002, 1003)}
+# SGQN's overlay images (Places365 in its paper): a third bank, disjoint from the training and test backgrounds.
+OVERLAY_SEEDS = tuple(range(2000, 2032))
 TRAIN_SOURCES_IN_FLAT_FOLDER = 4
 DEFAULT_FRAME_BUDGET = 1000
 
@@ -169,6 +171,21 @@ class ProceduralBackground:
         alpha = blob_alpha[rows1, cols1]
         mixed = blobs[rows1, cols1] * alpha + backdrop[rows0, cols0] * (255 - alpha)
         return (mixed // 255).astype(np.uint8)
+
+
+def overlay_bank(height: int, width: int, n_images: int = len(OVERLAY_SEEDS)) -> np.ndarray:
+    """Still procedural images for SGQN's overlay augmentation, none of them a training or test background.
+
+    :param height: image height
+    :param width: image width
+    :param n_images: how many (at most ``len(OVERLAY_SEEDS)``)
+    :return: uint8 (n_images, height, width, 3)
+    """
+    if not 1 <= n_images <= len(OVERLAY_SEEDS):
+        raise ValueError(f"n_images must be in 1..{len(OVERLAY_SEEDS)}, got {n_images!r}")
+    return np.stack(
+        [ProceduralBackground(seed, height, width, n_frames=1).frame(0) for seed in OVERLAY_SEEDS[:n_images]]
+    )
 
 
 # --- file sources ---------------------------------------------------------------------------------

@@ -79,6 +79,23 @@ def test_saliency_is_the_gradient_of_the_chosen_logit():
     assert torch.allclose(saliency_map(classifier, z, torch.tensor([0, 0, 0])), torch.tensor([1.0, 2.0, 0.0]))
 
 
+@pytest.mark.parametrize("given", [False, True])
+def test_the_classifiers_closed_form_input_gradient_is_autograds(given):
+    torch.manual_seed(0)
+    classifier = DomainClassifier(6, 4, hidden_dim=16)
+    z = torch.randn(32, 6)
+    domains = torch.randint(0, 4, (32,)) if given else None
+    target = classifier(z).argmax(dim=1) if domains is None else domains
+    x = z.clone().requires_grad_(True)
+    (expected,) = torch.autograd.grad(classifier(x).gather(1, target.unsqueeze(1)).sum(), x)
+    closed = classifier.input_gradient(z, domains)
+    torch.testing.assert_close(closed, expected)
+    assert not closed.requires_grad and all(param.grad is None for param in classifier.parameters())
+    # saliency_map takes that path for a DomainClassifier, and autograd for any other module
+    wrapped = torch.nn.Sequential(classifier)
+    torch.testing.assert_close(saliency_map(classifier, z, domains), saliency_map(wrapped, z, domains))
+
+
 def test_paper_form_is_softmax_of_raw_saliency_and_default_is_scale_free():
     z = torch.tensor([[5.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 2.0]])
     classifier = linear_classifier()

@@ -53,7 +53,8 @@ def test_train_both_algorithms_then_evaluate_and_plot(tmp_path):
         columns = next(csv.reader(handle))
     assert {"sgfd/classifier_accuracy", "eval/extrapolation/mean_reward"} <= set(columns)
     config = yaml.load((sgfd_run / RUN_NAME / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
-    assert config["env_kwargs"] == {"obs_type": "state"} and config["classifier_start"] == 300
+    assert config["env_kwargs"] == {"obs_type": "state", "observe_parameter": True}
+    assert config["classifier_start"] == 300
 
     result = zoo("evaluate", "-f", str(logs), "--n-episodes", "2")
     rows = read_results(logs / "results.csv")

@@ -10,7 +10,7 @@ from rl_zoo3.hyperparams_opt import HYPERPARAMS_CONVERTER, HYPERPARAMS_SAMPLER, 
 from rl_zoo3.utils import ALGOS
 from stable_baselines3 import SAC
 
-from sb3_sgfd import SGFD_SAC
+from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED
 
 
 @dataclass(frozen=True)
@@ -22,18 +22,29 @@ class ZooAlgo:
     :param column: Its column name in the paper's tables
     :param hyperparams: The yaml file stem under zoo/hyperparams it reads
     :param overrides: Hyperparameters set on top of that file (how the ablations differ from SGFD)
+    :param quick_hyperparams: The stem under zoo/hyperparams/quick, where it differs from ``hyperparams``
     """
 
     algo_class: type
     column: str
     hyperparams: str
     overrides: dict[str, Any] = field(default_factory=dict)
+    quick_hyperparams: str | None = None
 
 
+# In the paper's column order (Tables 1-2: SGFD, TED, AMBS, SGQN, DBC, DR), then SGFD's ablations.
+# "sgfd_sac" is the paper's agent: SGFD's reweighting on AMBS's representation learning (appendix B); its quick
+# configuration is on states, where there is no encoder to learn, so it is the reweighting on SAC there.
 # "sac" is the Domain Randomisation baseline: SAC with the same policy on the same training domains.
 SGFD_ALGOS: dict[str, ZooAlgo] = {
     "sgfd_sac": ZooAlgo(SGFD_SAC, "SGFD", "sgfd_sac"),
+    "ted": ZooAlgo(TED, "TED", "ted"),
+    "ambs": ZooAlgo(AMBS, "AMBS", "ambs"),
+    "sgqn": ZooAlgo(SGQN, "SGQN", "sgqn"),
+    "dbc": ZooAlgo(DBC, "DBC", "dbc"),
     "sac": ZooAlgo(SAC, "DR", "sac"),
+    # SGFD on SAC's critic-trained encoder, without AMBS's objective (this package's first SGFD agent)
+    "sgfd_sac_plain": ZooAlgo(SGFD_SAC, "SGFD on SAC", "sgfd_sac_plain", quick_hyperparams="sgfd_sac"),
     "sgfd_sac_no_rff": ZooAlgo(SGFD_SAC, "SGFD w/o RFF", "sgfd_sac", {"use_rff": False}),
     "sgfd_sac_no_saliency": ZooAlgo(SGFD_SAC, "SGFD w/o saliency", "sgfd_sac", {"use_saliency": False}),
     # Algorithm 1 (line 18 updates Q with the unweighted eq. 1) and the official code weight the actor only.
@@ -67,12 +78,15 @@ def convert_sgfd_sac_params(sampled_params: dict[str, Any]) -> dict[str, Any]:
 
 
 def register_algorithms() -> None:
-    """Add SGFD's keys to rl-zoo3's tables; idempotent."""
+    """Add SGFD's keys to rl-zoo3's tables; idempotent. The other agents take rl-zoo3's SAC search space."""
     for key, algo in SGFD_ALGOS.items():
         ALGOS[key] = algo.algo_class
         if algo.algo_class is SGFD_SAC:
             HYPERPARAMS_SAMPLER[key] = sample_sgfd_sac_params
             HYPERPARAMS_CONVERTER[key] = convert_sgfd_sac_params
+        elif key != "sac":
+            HYPERPARAMS_SAMPLER[key] = HYPERPARAMS_SAMPLER["sac"]
+            HYPERPARAMS_CONVERTER[key] = HYPERPARAMS_CONVERTER["sac"]
 
 
 def column_name(algo: str) -> str:

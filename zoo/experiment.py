@@ -17,6 +17,7 @@ from stable_baselines3.common.preprocessing import is_image_space, is_image_spac
 from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecNormalize, VecTransposeImage
 
 import sgfd_envs
+from sgfd_envs.backgrounds import overlay_bank
 from zoo.algos import SGFD_ALGOS
 from zoo.callbacks import CSVLogCallback, MultiSplitEvalCallback, ResumableCheckpointCallback, read_checkpoint
 
@@ -43,8 +44,12 @@ class ZooError(Exception):
 
 def hyperparams_file(algo: str, quick: bool = False) -> Path:
     """The zoo's yaml for ``algo``: paper scale, or the quick configuration for a laptop-size run."""
-    stem = SGFD_ALGOS[algo].hyperparams if algo in SGFD_ALGOS else algo
-    return HYPERPARAMS_DIR / ("quick" if quick else "") / f"{stem}.yml"
+    if algo not in SGFD_ALGOS:
+        return HYPERPARAMS_DIR / ("quick" if quick else "") / f"{algo}.yml"
+    entry = SGFD_ALGOS[algo]
+    if quick:
+        return HYPERPARAMS_DIR / "quick" / f"{entry.quick_hyperparams or entry.hyperparams}.yml"
+    return HYPERPARAMS_DIR / f"{entry.hyperparams}.yml"
 
 
 class SGFDExperimentManager(ExperimentManager):
@@ -115,7 +120,18 @@ class SGFDExperimentManager(ExperimentManager):
         if not explicit_n_envs:
             self.n_envs = sgfd_envs.n_domains(self.env_name.gym_id, "train", **self.env_kwargs)
         check_algo_kwargs(self.algo, processed)
+        self._add_overlay_images(processed)
         return processed, env_wrapper, callbacks, vec_env_wrapper
+
+    def _add_overlay_images(self, hyperparams: dict[str, Any]) -> None:
+        """SGQN's overlay images, unless the yaml names some: sgfd_envs' procedural overlay bank."""
+        representation = hyperparams.get("representation", getattr(ALGOS[self.algo], "fixed_representation", None))
+        kwargs = dict(hyperparams.get("representation_kwargs") or {})
+        if representation != "sgqn" or "overlay_images" in kwargs or "overlay_dir" in kwargs:
+            return
+        size = self.env_kwargs.get("image_size", 84)
+        kwargs["overlay_images"] = overlay_bank(size, size)
+        hyperparams["representation_kwargs"] = kwargs
 
     # -- environments ----------------------------------------------------------------------------
 
@@ -237,9 +253,22 @@ def wrap_like_training(env: VecEnv, frame_stack: int | None, normalize=None, eva
     return env
 
 
+def constructor_arguments(algo_class: type) -> set[str]:
+    """The keyword arguments ``algo_class`` takes, following ``**kwargs`` up to the base class that has them."""
+    names: set[str] = set()
+    for cls in algo_class.__mro__:
+        if "__init__" not in vars(cls):
+            continue
+        parameters = inspect.signature(cls.__init__).parameters
+        names |= {name for name, p in parameters.items() if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}
+        if not any(p.kind == p.VAR_KEYWORD for p in parameters.values()):
+            break
+    return names - {"self", "env"}
+
+
 def check_algo_kwargs(algo: str, hyperparams: dict[str, Any]) -> None:
     """Refuse yaml keys that neither rl-zoo3 nor the algorithm's constructor knows, naming close matches."""
-    known = set(inspect.signature(ALGOS[algo].__init__).parameters) - {"self", "env"}
+    known = constructor_arguments(ALGOS[algo])
     unknown = sorted(set(hyperparams) - known - ZOO_KEYS)
     if unknown:
         hints = []
