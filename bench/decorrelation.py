@@ -17,41 +17,47 @@ import argparse
 import statistics
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import torch
 from torch import Tensor, nn
-from torch.nn import functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from sgfd_synthetic import DomainBatch, ScaledLogits, make_domain_batch
 
 from sb3_sgfd.reweighting import (
+    WeightMemory,
     effective_sample_size,
     learn_sample_weights,
     weighted_pearson,
 )
-from sb3_sgfd.saliency import DomainClassifier, classifier_accuracy, feature_probabilities, saliency_map
+from sb3_sgfd.saliency import (
+    DomainClassifier,
+    classifier_accuracy,
+    feature_probabilities,
+    saliency_map,
+    train_classifier,
+)
 
-N_BATCH, N_TRAIN, N_DOMAINS = 128, 8192, 4
+N_BATCH, N_TRAIN, N_DOMAINS = 128, 8192, 4  # the memory rows use 40 of the training batches
 
 
-def train_classifier(
-    z: Tensor, domains: Tensor, steps: int, seed: int, stop_at: tuple[DomainBatch, float] | None = None
+def train_domain_classifier(
+    z: Tensor, domains: Tensor, steps: int, seed: int, stop_accuracy: float | None = None
 ) -> DomainClassifier:
-    """Adam on minibatches of 256; with ``stop_at=(batch, acc)``, stop once the accuracy on batch reaches acc."""
+    """Adam on minibatches of 256 (sb3_sgfd.saliency.train_classifier, SGFD's loop); with ``stop_accuracy``, it
+    stops at the first minibatch classified that well, as SGFD_SAC's classifier does at its threshold."""
     torch.manual_seed(seed)
     classifier = DomainClassifier(z.shape[1], N_DOMAINS)
     optimizer = torch.optim.Adam(classifier.parameters(), lr=1e-3)
-    for _ in range(steps):
-        if stop_at is not None and classifier_accuracy(classifier, stop_at[0].z, stop_at[0].domains) >= stop_at[1]:
-            break
-        index = torch.randint(0, len(z), (256,))
-        loss = F.cross_entropy(classifier(z[index]), domains[index])
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
+
+    def batches() -> Iterator[tuple[Tensor, Tensor]]:
+        for _ in range(steps):
+            index = torch.randint(0, len(z), (256,))
+            yield z[index], domains[index]
+
+    train_classifier(classifier, optimizer, batches(), stop_accuracy)
     return classifier
 
 
@@ -67,7 +73,7 @@ class Case:
         self.seed = seed
         self.train_z, self.train_domains = full.z[:N_TRAIN], full.domains[:N_TRAIN]
         self.batch = full._replace(z=full.z[N_TRAIN:], domains=full.domains[N_TRAIN:])
-        self.classifier = train_classifier(self.train_z, self.train_domains, steps=300, seed=seed)
+        self.classifier = train_domain_classifier(self.train_z, self.train_domains, steps=300, seed=seed)
         self.probs = feature_probabilities(self.classifier, self.batch.z)
         literal = {"temperature": 1.0, "normalize": False, "smoothing": 0.0}
         self.literal_probs = feature_probabilities(self.classifier, self.batch.z, **literal)
@@ -76,10 +82,28 @@ class Case:
         self.quiet_literal_probs = feature_probabilities(quiet, self.batch.z, **literal)
 
 
-def evaluate(cases: list[Case], probs: Callable[[Case], Tensor | None], scale: float = 1.0, **kwargs) -> list[str]:
+def remembered(case: Case, momentum: float, n_earlier: int) -> WeightMemory:
+    """A memory that has solved ``n_earlier`` batches of the case's training samples, as a run's would have."""
+    memory = WeightMemory(momentum)
+    generator = torch.Generator().manual_seed(20_000 + case.seed)
+    for index in range(n_earlier):
+        z = case.train_z[index * N_BATCH : (index + 1) * N_BATCH]
+        learn_sample_weights(z, feature_probabilities(case.classifier, z), generator=generator, memory=memory)
+    return memory
+
+
+def evaluate(
+    cases: list[Case],
+    probs: Callable[[Case], Tensor | None],
+    scale: float = 1.0,
+    memory: tuple[float, int] | None = None,
+    **kwargs,
+) -> list[str]:
     before, after, reductions, ess, loss_ratio = [], [], [], [], []
     for case in cases:
         generator = torch.Generator().manual_seed(10_000 + case.seed)
+        if memory is not None:
+            kwargs["memory"] = remembered(case, *memory)
         weights, loss_before, loss_after = learn_sample_weights(
             case.batch.z * scale, probs(case), generator=generator, return_losses=True, **kwargs
         )
@@ -125,6 +149,9 @@ def decorrelation_table(cases: list[Case]) -> None:
         ("no RFF (linear)", saliency, {"use_rff": False}),
     ]
     rows = [[name, *evaluate(cases, probs, **kwargs)] for name, probs, kwargs in settings]
+    # The official code's memory of past batches (momentum 0.9), after 10 and 40 earlier batches of the run.
+    for n_earlier in (10, 40):
+        rows.append([f"memory 0.9, {n_earlier} earlier batches", *evaluate(cases, saliency, memory=(0.9, n_earlier))])
     # Raw states are not squashed; Pearson is scale-free, so only the RFF input changes.
     rows.append(["z x 10 (raw-state scale)", *evaluate(cases, saliency, scale=10.0)])
     rows.append(["z x 10, feature_std None", *evaluate(cases, saliency, scale=10.0, feature_std=None)])
@@ -136,8 +163,8 @@ def saliency_table(cases: list[Case], d: int) -> None:
     """Where feature_probabilities puts the mass, for classifiers of different confidence."""
     # SGFD starts reweighting as soon as the classifier's accuracy passes 0.9.
     early = {
-        case.seed: train_classifier(
-            case.train_z, case.train_domains, steps=300, seed=case.seed, stop_at=(case.batch, 0.9)
+        case.seed: train_domain_classifier(
+            case.train_z, case.train_domains, steps=300, seed=case.seed, stop_accuracy=0.9
         )
         for case in cases
     }

@@ -169,6 +169,7 @@ class SGFD_SAC(EncoderSAC):
         # Sticky: weights are learned from the first time the classifier reaches the threshold on.
         self.classifier_ready = False
         self.single_domain = False
+        self._domains_checked = False
         self.rff_seed: int | None = None
         self.weight_memory: WeightMemory | None = None
         super().__init__(
@@ -245,10 +246,13 @@ class SGFD_SAC(EncoderSAC):
         """
         if self.num_timesteps < self.classifier_start or self.single_domain:
             return None, None
-        if not self.classifier_ready and len(self.replay_buffer.stored_domains()) < 2:  # type: ignore[union-attr]
-            warnings.warn(_SINGLE_DOMAIN_WARNING, stacklevel=2)
-            self.single_domain = True
-            return None, None
+        if not self.classifier_ready and not self._domains_checked:
+            # Once, when the classifier starts: stored_domains() reads the whole buffer.
+            self._domains_checked = True
+            if len(self.replay_buffer.stored_domains()) < 2:  # type: ignore[union-attr]
+                warnings.warn(_SINGLE_DOMAIN_WARNING, stacklevel=2)
+                self.single_domain = True
+                return None, None
 
         z = self.encode(observations)
         domains = self._checked_domains(replay_data.domains)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import sgfd_envs
-from zoo import correlation
+from sgfd_analysis import correlation
+from zoo.arguments import ZooError
 from zoo.cli import main as zoo_main
-from zoo.experiment import ZooError
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 # Reduced but honest: all four training domains, 8 batches of 128 instead of 31, the defaults otherwise.

@@ -15,10 +15,11 @@ from huggingface_sb3 import EnvironmentName
 
 import sgfd_envs
 from sb3_sgfd import SGFD_SAC
-from zoo import figures
+from sgfd_analysis import figures
 from zoo.cli import main as zoo_main
-from zoo.evaluate import find_runs
 from zoo.experiment import wrap_like_training
+from zoo.plot import mean_and_band
+from zoo.runs import RunFolder, find_runs, select_run
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 ENV_NAME = str(EnvironmentName(ENV_ID))
@@ -81,7 +82,7 @@ def test_run_fixture_is_found_like_a_trained_run(log_folder):
 
 
 def test_action_saliency_matches_finite_differences(log_folder):
-    model = figures.load_model(figures.select_run(log_folder, ENV_ID, "sgfd_sac"))
+    model = select_run(log_folder, ENV_ID, "sgfd_sac").load_model()
     rng = np.random.default_rng(0)
     obs = rng.integers(0, 256, size=(2, 3 * FRAME_STACK, 32, 32)).astype(np.float32)
     saliency = figures.action_saliency(model, obs)
@@ -131,7 +132,7 @@ def test_saliency_maps_command_writes_a_grid_of_train_and_test_domains(log_folde
         assert data["observations"].shape == (4, 2, 3 * FRAME_STACK, 32, 32)
         assert (data["saliency"] >= 0).all() and (data["saliency"].reshape(4, -1).max(axis=1) > 0).all()
         # The stored maps are the gradients of the stored observations.
-        model = figures.load_model(figures.select_run(log_folder, ENV_ID, "sgfd_sac"))
+        model = select_run(log_folder, ENV_ID, "sgfd_sac").load_model()
         np.testing.assert_allclose(
             figures.action_saliency(model, data["observations"][2]), data["saliency"][2], rtol=1e-4, atol=1e-9
         )
@@ -213,12 +214,13 @@ def test_classifier_accuracy_merges_resumed_logs_and_plots_mean_and_threshold(tm
         [{"time/total_timesteps": 50, "train/critic_loss": 1.0}, *rows([100, 250, 400], [0.5, 0.7, 0.9])],
         {"accuracy_threshold": 0.9, "classifier_start": 100},
     )
-    steps, accuracy = figures.read_accuracy_curve(run1)
+    steps, accuracy = RunFolder(run1).log(figures.ACCURACY_KEY)
     np.testing.assert_array_equal(steps, [100, 200, 300, 400])
     np.testing.assert_allclose(accuracy, [0.3, 0.6, 0.8, 0.92])
 
     curves = figures.load_accuracy_curves(folder)
-    grid, mean, std = figures.mean_band(curves[ENV_ID]["sgfd_sac"], n_points=4)
+    curves_of_runs = [(curve["steps"], curve["accuracy"]) for curve in curves[ENV_ID]["sgfd_sac"]]
+    grid, mean, std = mean_and_band(curves_of_runs, n_points=4)
     np.testing.assert_allclose(grid, [100, 200, 300, 400])
     np.testing.assert_allclose(mean, [0.4, (0.6 + 0.6333333) / 2, (0.8 + 0.7666667) / 2, 0.91], rtol=1e-5)
     assert std[0] == pytest.approx(0.1)

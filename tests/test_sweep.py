@@ -18,8 +18,7 @@ import ray
 import yaml
 
 from zoo import cli, sweep
-from zoo.callbacks import CHECKPOINT_INDEX
-from zoo.evaluate import find_runs
+from zoo.runs import CHECKPOINT_INDEX, find_runs
 
 # ray is imported above, at collection: its log handler keeps the sys.stderr of its import, and one
 # imported inside a test (under capsys) would write to a closed stream in the tests after it.
@@ -112,15 +111,39 @@ def test_bad_arguments_exit_2_with_one_line_naming_the_argument(
     assert not (tmp_path / "logs").exists()
 
 
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--algos", "sac", "-params", "n_rff:2"], "unknown hyperparameter(s) for sac: 'n_rff'"),
+        # the paper-scale configuration (pixel encoder) on states: the flag that fits is named
+        (["--env-kwargs", "obs_type:'state'"], "but the env gives state observations: use --quick"),
+    ],
+)
+def test_a_configuration_that_does_not_fit_is_refused_in_one_line_before_any_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], message: str
+) -> None:
+    argv = ["--algos", "sgfd_sac", "--envs", "SGFD/MT-cheetah-run-v0", "--seeds", "0", "1", "-f", str(tmp_path)]
+    argv += ["-n", "300", "--num-cpus", "1", *extra]
+    if extra[0] == "--algos":
+        argv += ["--quick"]  # the n_rff case is about the algorithm, on the quick configuration
+    assert cli.main(["sweep", *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("sgfd-zoo sweep: error: ") and message in err[0]
+    assert not ray.is_initialized() and not list(tmp_path.iterdir())
+
+
 @pytest.fixture(scope="module")
 def first_sweep(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int, str]:
     """
-    Two tiny SGFD runs and two SAC runs that fail (n_rff is no SAC hyperparameter), on a local Ray
-    instance the sweep starts itself; then the evaluation of what finished.
+    Two tiny SGFD runs and two SAC runs that fail (each "crashed" earlier, leaving a checkpoint index whose
+    model is gone, so resuming it fails), on a local Ray instance the sweep starts itself; then the
+    evaluation of what finished.
     """
     folder = tmp_path_factory.mktemp("sweep") / "logs"
+    for seed in (0, 1):
+        make_run(folder, "sac", seed + 1, seed=seed, checkpoint=300)
     argv = ["sweep", "--algos", "sgfd_sac", "sac", "--envs", ENV, "--seeds", "0", "1", "-f", str(folder)]
-    argv += ["--num-cpus", "2", "--n-episodes", "1", *TINY, "-params", "n_rff:2"]
+    argv += ["--num-cpus", "2", "--n-episodes", "1", *TINY]
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
         code = cli.main(argv)
@@ -147,10 +170,12 @@ def test_sweep_trains_each_seed_into_its_own_folder_reports_failures_and_evaluat
     assert summary.startswith("2 trained, 0 already finished, 2 failed")
     for seed in (0, 1):
         log = folder / "sac" / f"{NAME}_{seed + 1}.log"
-        assert f"FAILED sac on {ENV} seed {seed}: ZooError: unknown hyperparameter(s) for sac: 'n_rff'" in summary
+        assert f"FAILED sac on {ENV} seed {seed}: " in summary and "checkpoint_300_steps" in summary
         assert f"(log: {log})" in summary
-        assert "Traceback" in log.read_text()
-    assert not (folder / "sac" / f"{NAME}_1").exists()
+        assert "resuming from its checkpoint" in log.read_text() and "Traceback" in log.read_text()
+        assert not (folder / "sac" / f"{NAME}_{seed + 1}" / f"{NAME}.zip").exists()
+    # The progress block: one line per run, its final state.
+    assert "sgfd_sac walker-walk seed 1" in out and "finished after" in out and "FAILED" in out
     # The tables cover what finished.
     with (folder / "results.csv").open() as handle:
         rows = list(csv.DictReader(handle))
@@ -193,7 +218,7 @@ def test_sweep_on_an_existing_cluster_skips_finished_runs_and_resumes_a_crashed_
     )
     assert result.returncode == 0, result.stdout + result.stderr
     assert "1 finished already, 1 to train (1 to resume)" in result.stdout
-    assert f"[1/1] finished sgfd_sac on {ENV} seed 0 (resumed): {crashed}" in result.stdout
+    assert f"[1/1] finished sgfd_sac on {ENV} seed 0 (resumed)" in result.stdout and f"({crashed})" in result.stdout
     assert finished_model.stat().st_mtime_ns == finished_mtime
     # Continued, not restarted: same folder, a log from step 600 on, a checkpoint at 900, the final model.
     assert (crashed / "progress_from_600.csv").exists()

@@ -14,9 +14,12 @@ import pytest
 import yaml
 
 import sgfd_envs
-from zoo.algos import SGFD_ALGOS, register_algorithms
+from zoo.algos import SGFD_ALGOS
+from zoo.arguments import ZooError
+from zoo.cli import main as zoo_main
 from zoo.evaluate import read_results, render_tables
-from zoo.experiment import SGFDExperimentManager, ZooError, hyperparams_file
+from zoo.experiment import SGFDExperimentManager, hyperparams_file, register_algorithms
+from zoo.runs import RunFolder
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 RUN_NAME = "SGFD-MT-walker-walk-v0"
@@ -135,19 +138,59 @@ def test_table_renders_in_the_papers_layout():
         (["evaluate", "-f", "/nonexistent/logs"], "does not exist"),
         (["plot", "-f", "/nonexistent/logs"], "does not exist"),
         (["frobnicate"], "unknown command"),
+        # a policy that cannot read the observations, named with the flags that fit
+        (
+            ["train", "--env", "SGFD/MT-cheetah-run-v0", "-n", "300", "--env-kwargs", "obs_type:'state'"],
+            "augmentation_views), but the env gives state observations: use --quick",
+        ),
+        (
+            [
+                "train",
+                "--algo",
+                "sac",
+                "--env",
+                "SGFD/MT-cheetah-run-v0",
+                "-n",
+                "300",
+                "--env-kwargs",
+                "obs_type:'state'",
+            ],
+            "encodes images, but the env gives state observations: use --quick",
+        ),
+        (
+            [
+                "train",
+                "--algo",
+                "sac",
+                "--env",
+                "SGFD/MT-cheetah-run-v0",
+                "-n",
+                "300",
+                "--env-kwargs",
+                "obs_type:'state'",
+                "-params",
+                "policy:'MlpPolicy'",
+            ],
+            "takes no features_extractor_kwargs ({'features_dim': 50}): use --quick",
+        ),
+        (
+            ["optimize", "--algo", "sac", "--env", ENV_ID, "--quick", "--env-kwargs", "obs_type:'pixels'"],
+            "reads flat states, but the env gives pixel observations: use the paper-scale configuration",
+        ),
+        (["train", "--algo", "dbc", "--env", ENV_ID, "--quick", "-params", "augmentation_views:2"], "shifts images"),
     ],
 )
-def test_bad_input_gives_one_clear_line_and_a_nonzero_exit(args, message):
-    result = zoo(*args, check=False)
-    assert result.returncode == 2
-    assert message in result.stderr
-    assert "Traceback" not in result.stderr
+def test_bad_input_gives_one_clear_line_and_a_nonzero_exit(args, message, capsys):
+    assert zoo_main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("sgfd-zoo") and ": error: " in err[0] and message in err[0]
 
 
-def test_unknown_algo_is_refused_by_the_parser():
-    result = zoo("train", "--algo", "ppo", "--env", ENV_ID, check=False)
-    assert result.returncode == 2
-    assert "invalid choice: 'ppo'" in result.stderr and "Traceback" not in result.stderr
+def test_unknown_algo_is_refused_by_the_parser(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        zoo_main(["train", "--algo", "ppo", "--env", ENV_ID])
+    assert exit_info.value.code == 2
+    assert "invalid choice: 'ppo'" in capsys.readouterr().err
 
 
 def test_zoo_error_reports_missing_checkpoint_for_resume(tmp_path):
@@ -157,16 +200,20 @@ def test_zoo_error_reports_missing_checkpoint_for_resume(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
+@pytest.mark.parametrize("algo", ["sgfd_sac", "dbc", "ambs", "ted", "sgqn"])
+def test_a_killed_run_resumes_from_its_last_checkpoint(algo, tmp_path):
     logs = tmp_path / "logs"
-    train_args = ["train", "--algo", "sgfd_sac", "--env", ENV_ID, "-f", str(logs), "--seed", "0", *TINY[:1]]
-    train_args += ["--num-threads", "1", "--no-progress", "--verbose", "0", *TINY_PARAMS, "--eval-episodes", "1"]
+    params = (
+        TINY_PARAMS if algo == "sgfd_sac" else ["-params", "learning_starts:200", "policy_kwargs:dict(net_arch=[32])"]
+    )
+    train_args = ["train", "--algo", algo, "--env", ENV_ID, "-f", str(logs), "--seed", "0", *TINY[:1]]
+    train_args += ["--num-threads", "1", "--no-progress", "--verbose", "0", *params, "--eval-episodes", "1"]
     process = subprocess.Popen(
         [sys.executable, "-m", "zoo.cli", *train_args, "-n", "100000", "--save-freq", "400", "--eval-freq", "400"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
-    run = logs / "sgfd_sac" / f"{RUN_NAME}_1"
+    run = logs / algo / f"{RUN_NAME}_1"
     deadline = time.monotonic() + 300
     try:
         while (
@@ -185,12 +232,12 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(tmp_path):
 
     result = zoo(*train_args, "-n", "1600", "--save-freq", "400", "--eval-freq", "400", "--resume")
     assert f"Resuming {run}" in result.stdout
-    assert not (logs / "sgfd_sac" / f"{RUN_NAME}_2").exists(), "resume must continue the run, not start another"
+    assert not (logs / algo / f"{RUN_NAME}_2").exists(), "resume must continue the run, not start another"
     assert (run / f"{RUN_NAME}.zip").exists()
-    from sb3_sgfd import SGFD_SAC
-
-    model = SGFD_SAC.load(run / f"{RUN_NAME}.zip", custom_objects={"buffer_size": 1})
-    assert model.num_timesteps == 1600
+    model = RunFolder(run).load_model()
+    assert model.num_timesteps == 1600 and type(model) is SGFD_ALGOS[algo].algo_class
+    if algo != "sgfd_sac":  # the objective's models came back from the checkpoint and trained on
+        assert model.representation_model is not None and model.representation == algo
     with np.load(run / "evaluations_train.npz") as data:
         steps = data["timesteps"].tolist()
     # The evaluations before the kill are kept and the resumed run appends to them.
@@ -222,7 +269,16 @@ def test_optimize_shares_a_study_through_a_journal_file(tmp_path):
 @pytest.mark.slow
 def test_the_quick_main_job_trains_both_evaluates_and_plots(tmp_path):
     result = zoo("quick", "-f", str(tmp_path), "-n", "600", "--eval-episodes", "1")
-    assert "sweep: 2 trained, 0 already finished, 0 failed" in result.stdout
+    assert "sweep: 4 trained, 0 already finished, 0 failed" in result.stdout  # two seeds by default
+    # Progress while it runs (a log: the block at the end), and no Ray noise.
+    assert "sgfd_sac MT-walker-walk seed 1" in result.stdout and "finished after" in result.stdout
+    assert "Ray" not in result.stdout + result.stderr
+    # The aggregate statistics over the two seeds, with intervals, and their figures.
+    assert "# interpolation: normalised score" in result.stdout and "P(SGFD > algo)" in result.stdout
+    assert (tmp_path / "aggregate.md").read_text() in result.stdout
+    scores = read_results(tmp_path / "scores.csv")
+    assert len(scores) == 2 * 2 * 3 and set(scores[0]) == {"algo", "env", "seed", "split", "return"}
+    assert (tmp_path / "plots" / "aggregate_extrapolation.png").stat().st_size > 10_000
     rows = read_results(tmp_path / "results.csv")
     assert {(row["algo"], row["split"]) for row in rows} == {
         (algo, split) for algo in ("sgfd_sac", "sac") for split in ("train", "interpolation", "extrapolation")
@@ -231,7 +287,7 @@ def test_the_quick_main_job_trains_both_evaluates_and_plots(tmp_path):
     assert (tmp_path / "plots" / f"{RUN_NAME}.png").exists()
     # A second call keeps what is finished.
     again = zoo("quick", "-f", str(tmp_path), "-n", "600", "--eval-episodes", "1")
-    assert "0 trained, 2 already finished" in again.stdout
+    assert "0 trained, 4 already finished" in again.stdout
     # The sweep numbers runs from 1 as rl-zoo3 does, so enjoy's default (newest run) finds the agent.
     watched = zoo(
         "enjoy",
@@ -247,4 +303,10 @@ def test_the_quick_main_job_trains_both_evaluates_and_plots(tmp_path):
         "--env-kwargs",
         "split:'extrapolation'",
     )
-    assert "Loading" in watched.stdout and "sgfd_sac/SGFD-MT-walker-walk-v0_1" in watched.stdout
+    # the newest: seed 1's
+    assert "Loading" in watched.stdout and "sgfd_sac/SGFD-MT-walker-walk-v0_2" in watched.stdout
+    # Env kwargs that change the observations: one line, naming what to leave out.
+    enjoy_args = ["enjoy", "--algo", "sac", "--env", ENV_ID, "-f", str(tmp_path), "-n", "10", "--no-render"]
+    mismatch = zoo(*enjoy_args, "--env-kwargs", "observe_parameter:False", check=False)
+    assert mismatch.returncode == 2, mismatch.stderr
+    assert "does not give the observations the agent was trained on" in mismatch.stderr.strip().splitlines()[-1]

@@ -1,10 +1,14 @@
-"""Callbacks the zoo adds to rl-zoo3's: evaluation on every split, and checkpoints a crash cannot spoil."""
+"""Callbacks the zoo adds to rl-zoo3's: evaluation on every split, checkpoints a crash cannot spoil, a CSV of
+everything logged, and progress reports for the sweep's live view."""
 
 from __future__ import annotations
 
 import json
 import os
+import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
@@ -12,7 +16,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import CSVOutputFormat
 from stable_baselines3.common.vec_env import VecEnv
 
-CHECKPOINT_INDEX = "checkpoint.json"
+from zoo.runs import CHECKPOINT_INDEX, read_checkpoint
 
 
 class MultiSplitEvalCallback(BaseCallback):
@@ -78,6 +82,8 @@ class MultiSplitEvalCallback(BaseCallback):
             self.logger.record(f"eval/{split}/std_reward", float(np.std(rewards)))
             if self.verbose > 0:
                 print(f"Eval at {self.num_timesteps} steps, {split}: {means[split]:.1f} +/- {np.std(rewards):.1f}")
+        # The step with the row, so that a CSV row of evaluations can be placed on the training's time axis.
+        self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
         self.logger.dump(self.num_timesteps)
         return means
 
@@ -170,16 +176,54 @@ class ResumableCheckpointCallback(BaseCallback):
         return entry
 
 
-def read_checkpoint(folder: str | Path) -> dict | None:
-    """The newest complete checkpoint recorded in ``folder``, or None."""
-    index = Path(folder) / CHECKPOINT_INDEX
-    if not index.exists():
-        return None
-    return json.loads(index.read_text())
-
-
 def _atomic(path: Path, write) -> None:
     # SB3 appends ".zip" to a model path without one, so the temporary name keeps the suffix.
     tmp = path.with_name(f".tmp-{path.name}")
     write(str(tmp))
     os.replace(tmp, path)
+
+
+class ProgressCallback(BaseCallback):
+    """
+    Report the run's progress to ``reporter`` at most every ``interval`` seconds and at the end: steps done,
+    the total, steps per second, the latest evaluation return of each split, and whether it ended.
+
+    :param reporter: called with a dict of figures; must return quickly (a Ray actor's ``.remote``)
+    :param total_timesteps: steps the run trains for in all
+    :param interval: seconds between reports
+    """
+
+    def __init__(self, reporter: Callable[[dict[str, Any]], None], total_timesteps: int, interval: float = 5.0):
+        super().__init__()
+        self.reporter = reporter
+        self.total_timesteps = int(total_timesteps)
+        self.interval = interval
+        self._last_report = 0.0
+        self._start: tuple[float, int] | None = None
+
+    def _on_training_start(self) -> None:
+        self._start = (time.monotonic(), self.num_timesteps)
+        self._report(done=False)
+
+    def _on_step(self) -> bool:
+        if time.monotonic() - self._last_report >= self.interval:
+            self._report(done=False)
+        return True
+
+    def _on_training_end(self) -> None:
+        self._report(done=True)
+
+    def _report(self, done: bool) -> None:
+        self._last_report = now = time.monotonic()
+        started, start_steps = self._start or (now, self.num_timesteps)
+        elapsed = now - started
+        rate = (self.num_timesteps - start_steps) / elapsed if elapsed > 0 else 0.0
+        returns = {
+            key.removeprefix("eval/").removesuffix("/mean_reward"): float(value)
+            for key, value in self.logger.name_to_value.items()
+            if key.startswith("eval/") and key.endswith("/mean_reward")
+        }
+        report = {"steps": self.num_timesteps, "total": self.total_timesteps, "steps_per_second": rate, "done": done}
+        if returns:
+            report["returns"] = returns
+        self.reporter(report)

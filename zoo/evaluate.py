@@ -1,77 +1,33 @@
-"""``sgfd-zoo evaluate``: every trained model of a log folder on every split, as the paper's tables."""
+"""``sgfd-zoo evaluate``: every trained model of a log folder on every split, as the paper's tables and as
+aggregate statistics with confidence intervals (:mod:`zoo.statistics`)."""
 
 from __future__ import annotations
 
 import argparse
-import csv
 import io
 from collections import defaultdict
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch as th
-import yaml
-from huggingface_sb3 import EnvironmentName
 from pytablewriter import MarkdownTableWriter
-from rl_zoo3.utils import ALGOS
-from stable_baselines3.common.evaluation import evaluate_policy
 
 import sgfd_envs
-from zoo.algos import SGFD_ALGOS, column_name, register_algorithms
-from zoo.experiment import ZooError, wrap_like_training
+from zoo.algos import algo_sort_key, column_name
+from zoo.arguments import ZooError, check_at_least, check_env_id
+from zoo.runs import RunFolder, find_runs
+from zoo.statistics import read_csv, split_sort_key, write_csv, write_statistics
 
 RESULT_FIELDS = ["algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes", "run"]
-# Order of the paper's tables: SGFD first, then the baselines and ablations.
-ALGO_ORDER = list(SGFD_ALGOS)
 
 
-@dataclass(frozen=True)
-class Run:
-    """One finished training run in rl-zoo3's layout: <folder>/<algo>/<EnvName>_<id>/<EnvName>.zip."""
-
-    algo: str
-    env_id: str
-    path: Path
-    seed: int
-    env_kwargs: dict[str, Any]
-    frame_stack: int | None
-
-    @property
-    def model_path(self) -> Path:
-        return self.path / f"{EnvironmentName(self.env_id)}.zip"
-
-
-def find_runs(folder: Path, algos: list[str] | None = None, env_ids: list[str] | None = None) -> list[Run]:
-    """The finished runs under ``folder``, optionally only of some algorithms and env ids."""
-    runs = []
-    names = {str(EnvironmentName(env_id)): env_id for env_id in sgfd_envs.SGFD_IDS}
-    for algo_dir in sorted(path for path in folder.iterdir() if path.is_dir()):
-        if algos and algo_dir.name not in algos:
-            continue
-        for run_dir in sorted(path for path in algo_dir.iterdir() if path.is_dir()):
-            env_name, _, run_id = run_dir.name.rpartition("_")
-            if env_name not in names or not run_id.isdigit() or (env_ids and names[env_name] not in env_ids):
-                continue
-            config_dir = run_dir / env_name
-            if not (run_dir / f"{env_name}.zip").exists() or not (config_dir / "args.yml").exists():
-                continue  # unfinished (or crashed: resume it with `sgfd-zoo train --resume`)
-            args = yaml.load((config_dir / "args.yml").read_text(), Loader=yaml.UnsafeLoader)
-            config = yaml.load((config_dir / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
-            env_kwargs = args.get("env_kwargs") or config.get("env_kwargs") or {}
-            frame_stack = config.get("frame_stack")
-            runs.append(Run(algo_dir.name, names[env_name], run_dir, int(args["seed"]), env_kwargs, frame_stack))
-    return runs
-
-
-def evaluate_run(run: Run, n_episodes: int, seed: int = 0) -> list[dict[str, Any]]:
+def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[str, Any]]:
     """Mean and std of the episode return of ``run``'s final model on each split of its env."""
-    register_algorithms()
-    if run.algo not in ALGOS:
-        raise ZooError(f"{run.path}: unknown algorithm {run.algo!r}")
-    # Evaluation needs no replay buffer: don't allocate the training one.
-    model = ALGOS[run.algo].load(run.model_path, custom_objects={"buffer_size": 1}, device="cpu")
+    from stable_baselines3.common.evaluation import evaluate_policy
+
+    from zoo.experiment import wrap_like_training
+
+    model = run.load_model()
     rows = []
     for split in sgfd_envs.splits(run.env_id):
         env = sgfd_envs.make_domain_vec_env(run.env_id, split=split, seed=seed, **run.env_kwargs)
@@ -95,21 +51,17 @@ def evaluate_run(run: Run, n_episodes: int, seed: int = 0) -> list[dict[str, Any
 
 def render_tables(results: list[dict[str, Any]]) -> str:
     """
-    The paper's layout, one markdown table per split: tasks as rows, algorithms as columns,
-    ``mean ± std`` over seeds (of each seed's mean return), and a Total row summing the means.
+    The paper's layout, one markdown table per split: tasks as rows, algorithms as columns (in the paper's
+    order), ``mean ± std`` over seeds (of each seed's mean return), and a Total row summing the means.
     """
     by_cell: dict[tuple[str, str, str], list[float]] = defaultdict(list)
     for row in results:
         by_cell[(row["split"], row["env"], row["algo"])].append(float(row["mean_reward"]))
-    split_order = ["train", "test", "interpolation", "extrapolation"]
-    splits = sorted({key[0] for key in by_cell}, key=lambda s: (split_order.index(s) if s in split_order else 99, s))
+    splits = sorted({key[0] for key in by_cell}, key=split_sort_key)
     out = io.StringIO()
     for split in splits:
         envs = sorted({env for s, env, _ in by_cell if s == split})
-        algos = sorted(
-            {algo for s, _, algo in by_cell if s == split},
-            key=lambda a: (ALGO_ORDER.index(a) if a in ALGO_ORDER else 99, a),
-        )
+        algos = sorted({algo for s, _, algo in by_cell if s == split}, key=algo_sort_key)
         totals = dict.fromkeys(algos, 0.0)
         matrix = []
         for env in envs:
@@ -142,17 +94,13 @@ def _task_name(env_id: str) -> str:
 
 def write_results(results: list[dict[str, Any]], folder: Path) -> tuple[Path, Path]:
     csv_path, md_path = folder / "results.csv", folder / "results.md"
-    with csv_path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=RESULT_FIELDS)
-        writer.writeheader()
-        writer.writerows(results)
+    write_csv(results, csv_path, RESULT_FIELDS)
     md_path.write_text(render_tables(results))
     return csv_path, md_path
 
 
 def read_results(path: Path) -> list[dict[str, Any]]:
-    with path.open(newline="") as handle:
-        return list(csv.DictReader(handle))
+    return read_csv(path)
 
 
 def main(argv: list[str]) -> int:
@@ -161,30 +109,36 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--algo", nargs="+", help="only these algorithm keys")
     parser.add_argument("--env", nargs="+", help="only these env ids")
     parser.add_argument("--n-episodes", type=int, default=10, help="episodes per split (spread over its domains)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation envs")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation envs and of the bootstrap")
     parser.add_argument(
         "--num-threads", type=int, default=1, help="torch threads (small-batch inference: more only contend)"
     )
+    parser.add_argument(
+        "--reference", default="sgfd_sac", help="the algorithm whose probability of improving on the others is shown"
+    )
+    parser.add_argument("--bootstrap-reps", type=int, default=2000, help="bootstrap replications of the CIs")
     args = parser.parse_args(argv)
     if not args.folder.is_dir():
         raise ZooError(f"--folder {args.folder} does not exist (train first: sgfd-zoo train -f {args.folder} ...)")
-    if args.n_episodes < 1:
-        raise ZooError(f"--n-episodes must be >= 1, got {args.n_episodes}")
-    if args.num_threads < 1:
-        raise ZooError(f"--num-threads must be >= 1, got {args.num_threads}")
-    th.set_num_threads(args.num_threads)
+    check_at_least("--n-episodes", args.n_episodes, 1)
+    check_at_least("--num-threads", args.num_threads, 1)
+    check_at_least("--bootstrap-reps", args.bootstrap_reps, 100)
     for env_id in args.env or []:
-        if env_id not in sgfd_envs.SGFD_IDS:
-            raise ZooError(f"--env {env_id!r} is not an SGFD id; choose from {', '.join(sgfd_envs.SGFD_IDS)}")
+        check_env_id(env_id)
     runs = find_runs(args.folder, args.algo, args.env)
     if not runs:
         raise ZooError(f"no finished run under {args.folder} (expected <algo>/<EnvName>_<id>/<EnvName>.zip)")
+    import torch as th
+
+    th.set_num_threads(args.num_threads)
     results = []
     for run in runs:
         print(f"Evaluating {run.algo} on {run.env_id} (seed {run.seed}): {run.path}")
         results += evaluate_run(run, args.n_episodes, args.seed)
     csv_path, md_path = write_results(results, args.folder)
+    markdown, files = write_statistics(results, runs, args.folder, args.reference, args.bootstrap_reps, args.seed)
     print()
     print(md_path.read_text())
-    print(f"Wrote {csv_path} and {md_path}")
+    print(markdown)
+    print(f"Wrote {csv_path}, {md_path}, " + ", ".join(str(path) for path in files))
     return 0

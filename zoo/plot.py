@@ -7,46 +7,59 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-from huggingface_sb3 import EnvironmentName
 from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global figure state
 
 import sgfd_envs
-from zoo.algos import column_name
-from zoo.experiment import ZooError
+from zoo.algos import algo_sort_key, column_name
+from zoo.arguments import ZooError
+from zoo.runs import env_name, find_runs
+
+Curve = tuple[np.ndarray, np.ndarray]
 
 
-def load_curves(folder: Path) -> dict[str, dict[str, dict[str, list[tuple[np.ndarray, np.ndarray]]]]]:
-    """env id -> split -> algo -> one (timesteps, mean return) curve per run, from evaluations_<split>.npz."""
-    names = {str(EnvironmentName(env_id)): env_id for env_id in sgfd_envs.SGFD_IDS}
+def load_curves(folder: Path) -> dict[str, dict[str, dict[str, list[Curve]]]]:
+    """env id -> split -> algo -> one (timesteps, mean evaluation return) curve per run (finished or not)."""
     curves: dict = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
-    for npz in sorted(folder.glob("*/*/evaluations_*.npz")):
-        run_dir, algo = npz.parent, npz.parent.parent.name
-        env_name = run_dir.name.rpartition("_")[0]
-        if env_name not in names:
-            continue
-        split = npz.stem.removeprefix("evaluations_")
-        with np.load(npz) as data:
-            if len(data["timesteps"]) == 0:
-                continue
-            curves[names[env_name]][split][algo].append((data["timesteps"], data["results"].mean(axis=1)))
+    for run in find_runs(folder, finished=False):
+        for split in sgfd_envs.splits(run.env_id):
+            evaluations = run.evaluations(split)
+            if evaluations is not None and len(evaluations["timesteps"]) > 0:
+                curve = (evaluations["timesteps"], evaluations["results"].mean(axis=1))
+                curves[run.env_id][split][run.algo].append(curve)
     return curves
 
 
-def mean_and_band(runs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean and ± one standard deviation over runs, on the evaluation steps all runs share."""
-    length = min(len(steps) for steps, _ in runs)
-    steps = runs[0][0][:length]
-    values = np.stack([returns[:length] for _, returns in runs])
-    mean, std = values.mean(axis=0), values.std(axis=0)
-    return steps, mean, std
+def mean_and_band(curves: list[Curve], n_points: int = 200) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean and one standard deviation over runs, on the steps every run covers.
+
+    Runs may be evaluated or logged at different steps (another --eval-freq, a resumed run), so each curve is
+    interpolated linearly onto a common grid over the range all of them share; curves on identical steps are
+    kept as they are.
+
+    :param curves: (steps, values) per run, steps increasing
+    :param n_points: points of the common grid when the runs' steps differ
+    """
+    if not curves:
+        raise ValueError("curves must hold at least one (steps, values) curve")
+    first_steps = np.asarray(curves[0][0])
+    if all(np.array_equal(np.asarray(steps), first_steps) for steps, _ in curves):
+        grid = first_steps.astype(np.float64)
+    else:
+        low = max(float(steps[0]) for steps, _ in curves)
+        high = min(float(steps[-1]) for steps, _ in curves)
+        grid = np.linspace(low, high, n_points) if high > low else np.array([low])
+    values = np.stack([np.interp(grid, steps, vals) for steps, vals in curves])
+    return grid, values.mean(axis=0), values.std(axis=0)
 
 
-def plot_env(env_id: str, curves: dict[str, dict[str, list]], out: Path) -> Path:
+def plot_env(env_id: str, curves: dict[str, dict[str, list[Curve]]], out: Path) -> Path:
+    """One panel per split: per algorithm, the mean evaluation return and a band of one std over seeds."""
     splits = [split for split in sgfd_envs.splits(env_id) if split in curves]
     fig = Figure(figsize=(4.5 * len(splits), 3.5))
     axes = fig.subplots(1, len(splits), squeeze=False)
     for ax, split in zip(axes[0], splits, strict=True):
-        for algo, runs in sorted(curves[split].items()):
+        for algo in sorted(curves[split], key=algo_sort_key):
+            runs = curves[split][algo]
             steps, mean, std = mean_and_band(runs)
             label = f"{column_name(algo)} ({len(runs)} seed{'s' if len(runs) > 1 else ''})"
             (line,) = ax.plot(steps, mean, label=label)
@@ -57,7 +70,7 @@ def plot_env(env_id: str, curves: dict[str, dict[str, list]], out: Path) -> Path
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    path = out / f"{EnvironmentName(env_id)}.png"
+    path = out / f"{env_name(env_id)}.png"
     fig.savefig(path, dpi=100)
     return path
 

@@ -25,7 +25,7 @@ import numpy as np
 import yaml
 
 import sgfd_envs
-from zoo.arguments import ZooError
+from zoo.arguments import ZooError, check_env_id
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -155,7 +155,7 @@ class RunFolder:
         """The final model, without allocating its replay buffer."""
         from rl_zoo3.utils import ALGOS
 
-        from zoo.algos import register_algorithms
+        from zoo.experiment import register_algorithms
 
         register_algorithms()
         if self.algo not in ALGOS:
@@ -203,6 +203,7 @@ def select_run(folder: Path, env_id: str, algo: str, run_id: int | None = None) 
     """
     if not Path(folder).is_dir():
         raise ZooError(f"--folder {folder} does not exist (train first: sgfd-zoo train -f {folder} ...)")
+    check_env_id(env_id)
     runs = {run.run_id: run for run in find_runs(folder, [algo], [env_id])}
     if not runs:
         raise ZooError(f"no finished {algo} run of {env_id} under {folder} (expected {algo}/<EnvName>_<id>/)")

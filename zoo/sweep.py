@@ -22,15 +22,14 @@ import traceback
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-
-import yaml
-from huggingface_sb3 import EnvironmentName
+from typing import Any
 
 import sgfd_envs  # before anything imports dm_control: it picks MuJoCo's headless GL backend
-from zoo import cli, evaluate
+from zoo import evaluate, training
 from zoo.algos import SGFD_ALGOS
-from zoo.callbacks import read_checkpoint
-from zoo.experiment import ZooError
+from zoo.arguments import ZooError, checked_names, flag_value, has_flag
+from zoo.progress import LiveView, ProgressBoard, duration, progress_line, returns_text
+from zoo.runs import RunFolder, find_runs, read_checkpoint, runs_by_id
 
 # Train flags the sweep sets per run itself, and what to use instead.
 SWEEP_OWNED_FLAGS = {
@@ -65,16 +64,24 @@ class Job:
     folder: Path
 
     @property
+    def run(self) -> RunFolder:
+        return RunFolder.at(self.folder, self.algo, self.env_id, self.run_id)
+
+    @property
     def run_dir(self) -> Path:
-        return self.folder / self.algo / f"{EnvironmentName(self.env_id)}_{self.run_id}"
+        return self.run.path
 
     @property
     def log_file(self) -> Path:
-        # Next to the run folder, not in it: a run that fails early leaves no half-made run folder behind.
-        return self.run_dir.with_name(f"{self.run_dir.name}.log")
+        return self.run.log_file
 
     def __str__(self) -> str:
         return f"{self.algo} on {self.env_id} seed {self.seed}"
+
+    @property
+    def name(self) -> str:
+        """Short, for the progress lines."""
+        return f"{self.algo} {self.env_id.split('/')[-1].removesuffix('-v0')} seed {self.seed}"
 
 
 # -- planning ------------------------------------------------------------------------------------
@@ -91,8 +98,7 @@ def plan(
     :param env_ids: SGFD env ids
     :param seeds: Training seeds
     """
-    runs = evaluate.find_runs(folder, list(algos), list(env_ids)) if folder.is_dir() else []
-    finished = {(run.algo, run.env_id, run.seed) for run in runs}
+    finished = {(run.algo, run.env_id, run.seed) for run in find_runs(folder, algos, env_ids)}
     jobs, done = [], []
     assigned: dict[tuple[str, str], set[int]] = {}
     # Seed by seed: the first runs to finish fill a whole table for one seed, not many seeds of one cell.
@@ -103,13 +109,13 @@ def plan(
                     done.append((algo, env_id, seed))
                     continue
                 taken = assigned.setdefault((algo, env_id), set())
-                run_id = choose_run_id(folder / algo, env_id, seed, [*(s + 1 for s in seeds), *taken])
+                run_id = choose_run_id(folder, algo, env_id, seed, [*(s + 1 for s in seeds), *taken])
                 taken.add(run_id)
                 jobs.append(Job(algo, env_id, seed, run_id, folder))
     return jobs, done
 
 
-def choose_run_id(algo_dir: Path, env_id: str, seed: int, reserved: Sequence[int]) -> int:
+def choose_run_id(folder: Path, algo: str, env_id: str, seed: int, reserved: Sequence[int]) -> int:
     """
     The run id of an unfinished ``seed``, decided here (in one process) because rl-zoo3's own choice,
     newest id + 1, races when runs start together. In order of preference:
@@ -121,58 +127,38 @@ def choose_run_id(algo_dir: Path, env_id: str, seed: int, reserved: Sequence[int
        folder holds another seed's run (from ``sgfd-zoo train``, say);
     4. one more than any id in the folder and any of ``reserved`` (the sweep's ids, ids already given).
 
-    :param algo_dir: ``<log folder>/<algo>``
+    :param folder: the sweep's log folder
+    :param algo: algorithm key
     :param env_id: SGFD env id
     :param seed: Training seed
     :param reserved: Ids a new id must not take
     """
-    existing = run_seeds(algo_dir, str(EnvironmentName(env_id)))
-    mine = {run_id: path for run_id, (path, run_seed) in existing.items() if run_seed == seed}
-    checkpoints = {run_id: read_checkpoint(path) for run_id, path in mine.items()}
-    resumable = [(checkpoint["num_timesteps"], run_id) for run_id, checkpoint in checkpoints.items() if checkpoint]
+    existing = runs_by_id(folder, algo, env_id)
+    mine = {run_id: run for run_id, run in existing.items() if run.seed == seed}
+    resumable = [(run.checkpoint["num_timesteps"], run_id) for run_id, run in mine.items() if run.checkpoint]
     if resumable:
         return max(resumable)[1]
     preferred = seed + 1
     if mine:
         return preferred if preferred in mine else max(mine)
-    if preferred not in existing or existing[preferred][1] is None:
+    if preferred not in existing or existing[preferred].seed is None:
         return preferred
     return max([*existing, *reserved, preferred]) + 1
-
-
-def run_seeds(algo_dir: Path, env_name: str) -> dict[int, tuple[Path, int | None]]:
-    """
-    Run folders ``<env_name>_<id>`` in ``algo_dir``: id -> (folder, seed from its args.yml or None).
-
-    :param algo_dir: ``<log folder>/<algo>``
-    :param env_name: rl-zoo3's env name (the id with "/" replaced)
-    """
-    runs: dict[int, tuple[Path, int | None]] = {}
-    if not algo_dir.is_dir():
-        return runs
-    for path in algo_dir.glob(f"{env_name}_*"):
-        run_id = path.name.rpartition("_")[2]
-        if not path.is_dir() or not run_id.isdigit():
-            continue
-        args_file = path / env_name / "args.yml"
-        seed = None
-        if args_file.exists():
-            seed = yaml.load(args_file.read_text(), Loader=yaml.UnsafeLoader).get("seed")
-        runs[int(run_id)] = (path, None if seed is None else int(seed))
-    return runs
 
 
 # -- one run, in a Ray worker -----------------------------------------------------------------------
 
 
-def train_job(job: Job, train_args: list[str], cwd: str) -> bool:
+def train_job(job: Job, train_args: list[str], cwd: str, board: Any = None) -> bool:
     """
     The Ray task: ``sgfd-zoo train`` of ``job`` in this worker process, its output appended to the job's
-    log file. Resumes from the run's checkpoint when it has one. Returns whether it resumed.
+    log file, its progress sent to ``board``. Resumes from the run's checkpoint when it has one. Returns
+    whether it resumed.
 
     :param job: The run
     :param train_args: Flags for ``sgfd-zoo train`` besides --algo, --env, --seed, -f
     :param cwd: The driver's working directory (relative paths in ``train_args`` are relative to it)
+    :param board: A ``ProgressBoard`` actor handle, or None
     """
     if os.path.isdir(cwd):
         os.chdir(cwd)
@@ -182,12 +168,13 @@ def train_job(job: Job, train_args: list[str], cwd: str) -> bool:
     argv += ["--run-id", str(job.run_id), *train_args]
     if resume:
         argv.append("--resume")
+    reporter = None if board is None else (lambda report: board.report.remote(job.name, report))
     job.log_file.parent.mkdir(parents=True, exist_ok=True)
     with _output_to(job.log_file):
         what = "resuming from its checkpoint" if resume else "new run"
         print(f"=== sgfd-zoo sweep, {time.strftime('%Y-%m-%d %H:%M:%S')}: {job} in {job.run_dir} ({what})", flush=True)
         try:
-            cli.train(argv)
+            training.train(argv, progress_reporter=reporter)
         except SystemExit as error:
             # argparse exits on bad flags; a SystemExit would end the Ray worker (a "crash" Ray retries).
             sys.stderr.flush()
@@ -195,9 +182,8 @@ def train_job(job: Job, train_args: list[str], cwd: str) -> bool:
         except BaseException:
             traceback.print_exc()
             raise
-    model = job.run_dir / f"{EnvironmentName(job.env_id)}.zip"
-    if not model.exists():
-        raise RuntimeError(f"sgfd-zoo train ended without saving {model}")
+    if not job.run.model_path.exists():
+        raise RuntimeError(f"sgfd-zoo train ended without saving {job.run.model_path}")
     return resume
 
 
@@ -267,16 +253,24 @@ def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
     )
     parser.add_argument("--n-episodes", type=int, default=10, help="evaluation episodes per split (default: 10)")
     parser.add_argument("--no-evaluate", action="store_true", help="train only; no tables")
+    parser.add_argument("--reference", default="sgfd_sac", help="the algorithm the statistics compare with the others")
+    parser.add_argument(
+        "--progress-interval",
+        type=float,
+        default=60.0,
+        help="seconds between progress blocks when the output is not a terminal (a terminal redraws live)",
+    )
+    parser.add_argument("--ray-logs", action="store_true", help="show Ray's own warnings and log lines")
     args, train_args = parser.parse_known_args(argv)
 
-    args.algos = _checked_names("--algos", args.algos, list(SGFD_ALGOS))
-    args.envs = _checked_names("--envs", args.envs, list(sgfd_envs.SGFD_IDS))
+    args.algos = checked_names("--algos", args.algos, list(SGFD_ALGOS))
+    args.envs = checked_names("--envs", args.envs, list(sgfd_envs.SGFD_IDS))
     args.seeds = list(dict.fromkeys(args.seeds))
     for seed in args.seeds:
         if not 0 <= seed <= MAX_SEED:
             raise ZooError(f"--seeds: {seed} is not in 0..{MAX_SEED}")
     for flag, instead in SWEEP_OWNED_FLAGS.items():
-        if cli._has_flag(train_args, flag):
+        if has_flag(train_args, flag):
             raise ZooError(f"{flag} is set per run by the sweep; use {instead}")
     if args.cpus_per_run <= 0:
         raise ZooError(f"--cpus-per-run must be > 0, got {args.cpus_per_run}")
@@ -297,20 +291,11 @@ def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
         raise ZooError(f"--folder {args.folder} is not a folder")
     args.folder = args.folder.resolve()
     # torch's threads per run follow the CPUs Ray reserves for it, unless the user says otherwise.
-    if not cli._has_flag(train_args, "--num-threads"):
+    if args.progress_interval <= 0:
+        raise ZooError(f"--progress-interval must be > 0, got {args.progress_interval:g}")
+    if not has_flag(train_args, "--num-threads"):
         train_args += ["--num-threads", str(max(math.floor(args.cpus_per_run), 1))]
     return args, train_args
-
-
-def _checked_names(flag: str, values: list[str], known: list[str]) -> list[str]:
-    import difflib
-
-    for value in values:
-        if value not in known:
-            close = difflib.get_close_matches(value, known, n=1)
-            hint = f" (did you mean {close[0]}?)" if close else ""
-            raise ZooError(f"{flag}: {value!r} is unknown{hint}; choose from {', '.join(known)}")
-    return list(dict.fromkeys(values))
 
 
 def main(argv: list[str]) -> int:
@@ -321,6 +306,11 @@ def main(argv: list[str]) -> int:
         f"sweep: {len(jobs) + len(done)} runs ({len(args.algos)} algos x {len(args.envs)} envs x {len(args.seeds)} "
         f"seeds) in {args.folder}: {len(done)} finished already, {len(jobs)} to train ({n_resume} to resume)"
     )
+    # Each (algorithm, env) configuration is read and checked here first: a flag that does not fit fails
+    # once, in one line, instead of in every Ray task.
+    for algo, env_id in dict.fromkeys((job.algo, job.env_id) for job in jobs):
+        argv = ["--algo", algo, "--env", env_id, "-f", str(args.folder), "--seed", "0", *train_args]
+        training.train(argv, check_only=True)
     failures: list[tuple[Job, str]] = []
     if jobs:
         try:
@@ -337,11 +327,13 @@ def main(argv: list[str]) -> int:
 
 
 def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -> list[tuple[Job, str]]:
-    """Run ``jobs`` as Ray tasks; returns the failed ones with a one-line reason. Ray is shut down after."""
+    """Run ``jobs`` as Ray tasks, showing their progress; returns the failed ones with a one-line reason.
+    Ray is shut down after."""
     import ray
 
     _start_ray(args)
     try:
+        board = ray.remote(num_cpus=0)(ProgressBoard).remote()
         task = ray.remote(
             num_cpus=args.cpus_per_run,
             num_gpus=args.gpus_per_run,
@@ -352,19 +344,34 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
             retry_exceptions=False,
         )(train_job)
         cwd = os.getcwd()
-        pending = {task.options(name=f"sweep {job}").remote(job, train_args, cwd): job for job in jobs}
+        pending = {task.options(name=f"sweep {job}").remote(job, train_args, cwd, board): job for job in jobs}
+        status: dict[str, str] = {}
         failures = []
-        while pending:
-            [ref], _ = ray.wait(list(pending), num_returns=1)
-            job = pending.pop(ref)
-            count = f"[{len(jobs) - len(pending)}/{len(jobs)}]"
-            try:
-                resumed = ray.get(ref)
-            except ray.exceptions.RayError as error:
-                failures.append((job, _reason(error)))
-                print(f"{count} FAILED {job}: {failures[-1][1]} (log: {job.log_file})", flush=True)
-            else:
-                print(f"{count} finished {job}{' (resumed)' if resumed else ''}: {job.run_dir}", flush=True)
+        started = time.monotonic()
+        with LiveView(args.progress_interval) as view:
+            while pending:
+                done, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
+                reports = ray.get(board.snapshot.remote())
+                for ref in done:
+                    job = pending.pop(ref)
+                    count = f"[{len(jobs) - len(pending)}/{len(jobs)}]"
+                    report = reports.get(job.name, {})
+                    try:
+                        resumed = ray.get(ref)
+                    except ray.exceptions.RayError as error:
+                        failures.append((job, _reason(error)))
+                        status[job.name] = "FAILED"
+                        view.message(f"{count} FAILED {job}: {failures[-1][1]} (log: {job.log_file})")
+                    else:
+                        status[job.name] = f"finished after {duration(time.monotonic() - started)}"
+                        evaluated = returns_text(report)
+                        view.message(
+                            f"{count} finished {job}{' (resumed)' if resumed else ''}"
+                            + (f": {evaluated}" if evaluated else "")
+                            + f" ({job.run_dir})"
+                        )
+                lines = [progress_line(job.name, reports.get(job.name), status.get(job.name, "")) for job in jobs]
+                view.show(lines, force=not pending)
         return failures
     finally:
         ray.shutdown()
@@ -373,7 +380,8 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
 def _start_ray(args: argparse.Namespace) -> None:
     import ray
 
-    quiet = {"log_to_driver": False, "logging_level": logging.WARNING}  # each run's output is in its log file
+    # Each run's output is in its log file; Ray's own warnings (token authentication, ...) only when asked for.
+    quiet = {"log_to_driver": False, "logging_level": logging.WARNING if args.ray_logs else logging.ERROR}
     if args.address is not None:
         _check_reachable(args.address)
         try:
@@ -386,7 +394,8 @@ def _start_ray(args: argparse.Namespace) -> None:
     # "local": a new instance even if `ray start` left one running on this machine.
     ray.init(address="local", num_cpus=args.num_cpus, include_dashboard=False, **quiet)
     cpus, gpus = ray.cluster_resources().get("CPU", 0), ray.cluster_resources().get("GPU", 0)
-    print(f"sweep: local Ray instance: {cpus:g} CPUs, {gpus:g} GPUs")
+    if args.ray_logs:
+        print(f"sweep: local Ray instance: {cpus:g} CPUs, {gpus:g} GPUs")
     if args.gpus_per_run > gpus:
         # Ray would wait forever for a GPU no node of this instance has.
         ray.shutdown()
@@ -423,20 +432,11 @@ def _reason(error: Exception) -> str:
 
 
 def _evaluate(args: argparse.Namespace, train_args: list[str]) -> None:
-    if not args.folder.is_dir() or not evaluate.find_runs(args.folder, args.algos, args.envs):
+    if not find_runs(args.folder, args.algos, args.envs):
         print("sweep: no finished run to evaluate")
         return
     # Evaluation is small-batch inference: as many threads as each run had.
-    threads = _flag_value(train_args, "--num-threads") or "1"
+    threads = flag_value(train_args, "--num-threads") or "1"
     evaluate_args = ["-f", str(args.folder), "--algo", *args.algos, "--env", *args.envs]
+    evaluate_args += ["--reference", args.reference]
     evaluate.main([*evaluate_args, "--n-episodes", str(args.n_episodes), "--num-threads", threads])
-
-
-def _flag_value(argv: Sequence[str], flag: str) -> str | None:
-    value = None
-    for i, arg in enumerate(argv):
-        if arg == flag and i + 1 < len(argv):
-            value = argv[i + 1]
-        elif arg.startswith(f"{flag}="):
-            value = arg.split("=", 1)[1]
-    return value

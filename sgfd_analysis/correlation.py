@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,12 +29,11 @@ import numpy as np
 import torch
 from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global figure state
 from matplotlib.patches import Rectangle
-from torch.nn import functional as F
 
 import sgfd_envs
 from sb3_sgfd.reweighting import effective_sample_size, learn_sample_weights, weighted_pearson
-from sb3_sgfd.saliency import DomainClassifier, classifier_accuracy, feature_probabilities
-from zoo.experiment import ZooError
+from sb3_sgfd.saliency import DomainClassifier, classifier_accuracy, feature_probabilities, train_classifier
+from zoo.arguments import ZooError
 
 WEIGHTINGS = ("raw", "global", "sgfd")
 TITLES = {"raw": "(a) raw data", "global": "(b) global decorrelation", "sgfd": "(c) SGFD (saliency-guided)"}
@@ -234,8 +234,9 @@ def _select_columns(names: list[str], features: list[str] | None, n_state_featur
 def train_domain_classifier(
     z: torch.Tensor, domains: torch.Tensor, n_domains: int, batch_size: int, generator: torch.Generator
 ) -> tuple[DomainClassifier, int]:
-    """A ``DomainClassifier`` trained as Algorithm 1 does: cross-entropy on random batches, until a batch
-    is classified with accuracy >= 0.9 (``SGFD_SAC``'s threshold), at most ``MAX_CLASSIFIER_STEPS`` steps.
+    """A ``DomainClassifier`` trained as Algorithm 1 does (``sb3_sgfd.saliency.train_classifier``): cross-entropy on
+    random batches, until a batch is classified with accuracy >= 0.9 (``SGFD_SAC``'s threshold), at most
+    ``MAX_CLASSIFIER_STEPS`` steps.
 
     :param z: (N, d) standardised features
     :param domains: (N,) labels
@@ -248,16 +249,14 @@ def train_domain_classifier(
         torch.manual_seed(int(torch.randint(2**31, (1,), generator=generator)))
         classifier = DomainClassifier(z.shape[1], max(n_domains, 2))
     optimizer = torch.optim.Adam(classifier.parameters(), lr=CLASSIFIER_LR)
-    for step in range(MAX_CLASSIFIER_STEPS):
-        batch = torch.randint(len(z), (batch_size,), generator=generator)
-        logits = classifier(z[batch])
-        if (logits.argmax(dim=1) == domains[batch]).float().mean().item() >= ACCURACY_THRESHOLD:
-            return classifier, step
-        loss = F.cross_entropy(logits, domains[batch])
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-    return classifier, MAX_CLASSIFIER_STEPS
+
+    def batches() -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+        for _ in range(MAX_CLASSIFIER_STEPS):
+            batch = torch.randint(len(z), (batch_size,), generator=generator)
+            yield z[batch], domains[batch]
+
+    _, steps = train_classifier(classifier, optimizer, batches(), stop_accuracy=ACCURACY_THRESHOLD)
+    return classifier, steps
 
 
 def correlation_study(sample: StateSample, batch_size: int = DEFAULT_BATCH_SIZE, seed: int = 0) -> StudyResult:

@@ -12,7 +12,6 @@ The paper's interpretability figures from trained agents and their logs.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import textwrap
@@ -23,8 +22,6 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch
-import yaml
-from huggingface_sb3 import EnvironmentName
 from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global figure state
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.preprocessing import is_image_space, preprocess_obs
@@ -33,58 +30,23 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 import sgfd_envs
 from sb3_sgfd.reweighting import effective_sample_size
 from sb3_sgfd.saliency import classifier_accuracy
-from zoo.algos import column_name, register_algorithms
-from zoo.evaluate import Run, find_runs
-from zoo.experiment import ZooError, wrap_like_training
+from zoo.algos import column_name
+from zoo.arguments import ZooError, check_env_id
+from zoo.experiment import wrap_like_training
+from zoo.plot import mean_and_band
+from zoo.runs import RunFolder, env_name, find_runs, select_run
 
 # Inches per image panel; the figures are grids of these.
 PANEL = 1.3
 DPI = 100
 ACCURACY_KEY = "sgfd/classifier_accuracy"
-STEPS_KEY = "time/total_timesteps"
 DEFAULT_ACCURACY_THRESHOLD = 0.9
 
 
 # --- runs and models -------------------------------------------------------------------------------------
 
 
-def select_run(folder: Path, env_id: str, algo: str, exp_id: int | None = None) -> Run:
-    """The finished run of ``algo`` on ``env_id`` under ``folder``: run ``exp_id``, or the newest one.
-
-    :param folder: log folder of ``sgfd-zoo train`` (rl-zoo3 layout)
-    :param env_id: an SGFD id
-    :param algo: algorithm key, e.g. ``sgfd_sac``
-    :param exp_id: the run's number (the ``_<id>`` suffix of its folder); None: the highest
-    """
-    if not folder.is_dir():
-        raise ZooError(f"--folder {folder} does not exist (train first: sgfd-zoo train -f {folder} ...)")
-    if env_id not in sgfd_envs.SGFD_IDS:
-        raise ZooError(f"--env {env_id!r} is not an SGFD id; choose from {', '.join(sgfd_envs.SGFD_IDS)}")
-    runs = find_runs(folder, [algo], [env_id])
-    if not runs:
-        raise ZooError(f"no finished {algo} run of {env_id} under {folder} (expected {algo}/<EnvName>_<id>/)")
-    ids = {int(run.path.name.rpartition("_")[2]): run for run in runs}
-    if exp_id is None:
-        return ids[max(ids)]
-    if exp_id not in ids:
-        raise ZooError(f"--exp-id {exp_id}: no such run of {algo} on {env_id}; choose from {sorted(ids)}")
-    return ids[exp_id]
-
-
-def load_model(run: Run) -> BaseAlgorithm:
-    """The final model of a run, on the CPU, without allocating a replay buffer.
-
-    :param run: a run of :func:`find_runs`
-    """
-    from rl_zoo3.utils import ALGOS
-
-    register_algorithms()
-    if run.algo not in ALGOS:
-        raise ZooError(f"{run.path}: unknown algorithm {run.algo!r}")
-    return ALGOS[run.algo].load(run.model_path, custom_objects={"buffer_size": 1}, device="cpu")
-
-
-def require_pixels(model: BaseAlgorithm, run: Run, command: str) -> None:
+def require_pixels(model: BaseAlgorithm, run: RunFolder, command: str) -> None:
     """Refuse agents that do not see images: the figures show frames."""
     if not is_image_space(model.observation_space):
         raise ZooError(
@@ -93,7 +55,7 @@ def require_pixels(model: BaseAlgorithm, run: Run, command: str) -> None:
         )
 
 
-def domain_env(run: Run, split: str, domains: list[int], seed: int) -> VecEnv:
+def domain_env(run: RunFolder, split: str, domains: list[int], seed: int) -> VecEnv:
     """One sub-env per listed domain of a split, with the run's env kwargs, wrapped as in training.
 
     :param run: the run whose env kwargs and frame stack are used
@@ -162,7 +124,7 @@ def action_saliency(model: BaseAlgorithm, observations: np.ndarray) -> np.ndarra
     return saliency.cpu().numpy()
 
 
-def saliency_rows(run: Run, max_domains: int) -> list[tuple[str, int]]:
+def saliency_rows(run: RunFolder, max_domains: int) -> list[tuple[str, int]]:
     """(split, domain) of each figure row: up to ``max_domains`` domains of every split, training first."""
     return [
         (split, domain)
@@ -214,7 +176,7 @@ def saliency_maps_main(argv: list[str]) -> int:
     if args.max_domains < 1:
         raise ZooError(f"--max-domains must be >= 1, got {args.max_domains}")
     run = select_run(args.folder, args.env, args.algo, args.exp_id)
-    model = load_model(run)
+    model = run.load_model()
     require_pixels(model, run, "saliency-maps")
     rows = saliency_rows(run, args.max_domains)
     frames, maps, observations = [], [], []
@@ -237,7 +199,7 @@ def saliency_maps_main(argv: list[str]) -> int:
         "channels of |d action / d pixel|, one scale for all maps"
     )
     out = _out_dir(args)
-    stem = f"saliency_maps_{EnvironmentName(run.env_id)}"
+    stem = f"saliency_maps_{env_name(run.env_id)}"
     png = out / f"{stem}.png"
     saliency_figure(frames_all, maps_all, row_labels, steps, title).savefig(png, dpi=DPI)
     npz = out / f"{stem}.npz"
@@ -319,7 +281,7 @@ def weighted_samples_main(argv: list[str]) -> int:
     parser.add_argument("--columns", type=int, default=16, help="frames per row of the figure")
     args = parser.parse_args(argv)
     run = select_run(args.folder, args.env, args.algo, args.exp_id)
-    model = load_model(run)
+    model = run.load_model()
     require_pixels(model, run, "weighted-samples")
     if not hasattr(model, "classifier"):
         raise ZooError(f"weighted-samples needs an SGFD_SAC agent; {run.path} is {type(model).__name__}")
@@ -358,7 +320,7 @@ def weighted_samples_main(argv: list[str]) -> int:
     )
     names = [f"train domain {domain}" for domain in domains]
     out = _out_dir(args)
-    stem = f"weighted_samples_{EnvironmentName(run.env_id)}"
+    stem = f"weighted_samples_{env_name(run.env_id)}"
     png = out / f"{stem}.png"
     frames = np.stack([newest_frame(o) for o in batch])
     weighted_samples_figure(frames, weights, labels, names, args.columns, title).savefig(png, dpi=DPI)
@@ -386,88 +348,34 @@ def weighted_samples_main(argv: list[str]) -> int:
 # --- classifier accuracy ---------------------------------------------------------------------------------
 
 
-def read_accuracy_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(timesteps, classifier accuracy) of one run from its progress*.csv, sorted by timesteps.
-
-    A resumed run continues in ``progress_from_<steps>.csv``; where files overlap, the later file wins
-    (the resumed run replaced what the crashed one logged after its checkpoint).
-
-    :param run_dir: the run's folder, ``<folder>/<algo>/<EnvName>_<id>``
-    """
-    points: dict[int, float] = {}
-    files = sorted(run_dir.glob("progress*.csv"), key=_resume_step)
-    for path in files:
-        with path.open(newline="") as handle:
-            reader = csv.DictReader(handle)
-            if reader.fieldnames is None or ACCURACY_KEY not in reader.fieldnames or STEPS_KEY not in reader.fieldnames:
-                continue
-            rows = [(row[STEPS_KEY], row[ACCURACY_KEY]) for row in reader]
-        resumed_at = _resume_step(path)
-        points = {step: value for step, value in points.items() if step <= resumed_at}
-        for steps, accuracy in rows:
-            if steps and accuracy:
-                points[int(float(steps))] = float(accuracy)
-    steps = np.array(sorted(points), dtype=np.int64)
-    return steps, np.array([points[step] for step in steps], dtype=np.float64)
-
-
-def _resume_step(path: Path) -> int:
-    suffix = path.stem.removeprefix("progress").removeprefix("_from_")
-    return int(suffix) if suffix.isdigit() else -1
-
-
 def load_accuracy_curves(folder: Path, env_ids: list[str] | None = None) -> dict[str, dict[str, list[dict[str, Any]]]]:
-    """env id -> algo -> one curve per run that logged the classifier's accuracy.
+    """env id -> algo -> one curve per run that logged the classifier's accuracy (resumed runs merged).
 
     Each curve is a dict with ``steps``, ``accuracy``, ``threshold`` and ``start`` (from the run's config).
 
     :param folder: log folder of ``sgfd-zoo train``
     :param env_ids: only these env ids
     """
-    names = {str(EnvironmentName(env_id)): env_id for env_id in sgfd_envs.SGFD_IDS}
     curves: dict[str, dict[str, list[dict[str, Any]]]] = defaultdict(lambda: defaultdict(list))
-    for run_dir in sorted(path for path in folder.glob("*/*") if path.is_dir()):
-        env_name, _, run_id = run_dir.name.rpartition("_")
-        if env_name not in names or not run_id.isdigit() or (env_ids and names[env_name] not in env_ids):
-            continue
-        steps, accuracy = read_accuracy_curve(run_dir)
+    for run in find_runs(folder, env_ids=env_ids, finished=False):
+        steps, accuracy = run.log(ACCURACY_KEY)
         if len(steps) == 0:
             continue
-        config = _run_config(run_dir / env_name / "config.yml")
-        curves[names[env_name]][run_dir.parent.name].append(
+        curves[run.env_id][run.algo].append(
             {
                 "steps": steps,
                 "accuracy": accuracy,
-                "threshold": float(config.get("accuracy_threshold", DEFAULT_ACCURACY_THRESHOLD)),
-                "start": config.get("classifier_start"),
-                "run": run_dir,
+                "threshold": float(run.config.get("accuracy_threshold", DEFAULT_ACCURACY_THRESHOLD)),
+                "start": run.config.get("classifier_start"),
+                "run": run.path,
             }
         )
     return curves
 
 
-def _run_config(path: Path) -> dict[str, Any]:
-    if not path.exists():
-        return {}
-    loaded = yaml.load(path.read_text(), Loader=yaml.UnsafeLoader)
-    # rl-zoo3 writes an OrderedDict, or a list of (key, value) pairs
-    return dict(loaded) if loaded else {}
-
-
-def mean_band(curves: list[dict[str, Any]], n_points: int = 200) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean and ± one standard deviation over runs, interpolated onto the steps every run covers.
-
-    Runs log at different steps (SB3 logs every few episodes), so each is interpolated linearly onto a
-    common grid spanning the range they share.
-
-    :param curves: curves of :func:`load_accuracy_curves`
-    :param n_points: grid points
-    """
-    low = max(curve["steps"][0] for curve in curves)
-    high = min(curve["steps"][-1] for curve in curves)
-    grid = np.linspace(low, high, n_points) if high > low else np.array([float(low)])
-    values = np.stack([np.interp(grid, curve["steps"], curve["accuracy"]) for curve in curves])
-    return grid, values.mean(axis=0), values.std(axis=0)
+def mean_band(curves: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean and one standard deviation of the accuracy over runs (:func:`zoo.plot.mean_and_band`)."""
+    return mean_and_band([(curve["steps"], curve["accuracy"]) for curve in curves])
 
 
 def accuracy_figure(env_id: str, by_algo: dict[str, list[dict[str, Any]]]) -> Figure:
@@ -510,8 +418,7 @@ def classifier_accuracy_main(argv: list[str]) -> int:
     if not args.folder.is_dir():
         raise ZooError(f"--folder {args.folder} does not exist (train first: sgfd-zoo train -f {args.folder} ...)")
     for env_id in args.env or []:
-        if env_id not in sgfd_envs.SGFD_IDS:
-            raise ZooError(f"--env {env_id!r} is not an SGFD id; choose from {', '.join(sgfd_envs.SGFD_IDS)}")
+        check_env_id(env_id)
     curves = load_accuracy_curves(args.folder, args.env)
     if not curves:
         raise ZooError(
@@ -520,7 +427,7 @@ def classifier_accuracy_main(argv: list[str]) -> int:
         )
     out = _out_dir(args)
     for env_id, by_algo in sorted(curves.items()):
-        png = out / f"classifier_accuracy_{EnvironmentName(env_id)}.png"
+        png = out / f"classifier_accuracy_{env_name(env_id)}.png"
         accuracy_figure(env_id, by_algo).savefig(png, dpi=DPI)
         for algo, runs in sorted(by_algo.items()):
             grid, mean, _ = mean_band(runs)

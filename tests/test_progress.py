@@ -1,0 +1,71 @@
+"""The sweep's live progress: the runs' reports, their lines, and how they are shown."""
+
+from __future__ import annotations
+
+import io
+
+import sgfd_envs
+from sb3_sgfd import EncoderSAC
+from zoo.callbacks import ProgressCallback
+from zoo.progress import LiveView, ProgressBoard, duration, progress_line
+
+
+def test_a_run_reports_its_steps_rate_and_end():
+    reports: list[dict] = []
+    env = sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", obs_type="state")
+    model = EncoderSAC("MlpPolicy", env, learning_starts=50, batch_size=16, policy_kwargs=dict(net_arch=[16]))
+    model.learn(120, callback=ProgressCallback(reports.append, total_timesteps=120, interval=0.0))
+    assert reports[0]["steps"] == 0 and not reports[0]["done"]
+    assert reports[-1] == {**reports[-1], "steps": 120, "total": 120, "done": True}
+    steps = [report["steps"] for report in reports]
+    assert steps == sorted(steps) and len(reports) > 3
+    assert reports[-1]["steps_per_second"] > 0
+
+
+def test_the_board_keeps_each_runs_latest_report():
+    board = ProgressBoard()
+    board.report("a", {"steps": 1})
+    board.report("a", {"steps": 5})
+    board.report("b", {"steps": 2})
+    snapshot = board.snapshot()
+    assert {key: value["steps"] for key, value in snapshot.items()} == {"a": 5, "b": 2}
+
+
+def test_progress_lines_show_steps_rate_eta_and_the_latest_returns():
+    report = {"steps": 5000, "total": 20000, "steps_per_second": 50.0, "returns": {"train": 312.44, "extrapolation": 8}}
+    line = progress_line("sgfd_sac MT-walker-walk seed 0", report)
+    assert "5000/20000" in line and " 25%" in line and "50 steps/s" in line
+    assert "ETA  5m00s" in line and "eval: train 312.4, extrapolation 8.0" in line
+    assert progress_line("sac MT-walker-walk seed 1", None).endswith("waiting")
+    assert progress_line("x", report, status="FAILED").endswith("FAILED")
+    assert (duration(3725), duration(245), duration(7)) == ("1h02m", "4m05s", "7s")
+
+
+def test_in_a_log_the_block_is_printed_at_the_interval_and_at_the_end():
+    stream = io.StringIO()
+    with LiveView(interval=3600.0, stream=stream) as view:
+        view.show(["first"])
+        view.show(["second"])  # within the interval: not printed
+        view.message("[1/2] finished")
+        view.show(["last"], force=True)
+    text = stream.getvalue()
+    assert "first" in text and "second" not in text and "last" in text
+    assert text.count("--- sweep progress") == 2 and "[1/2] finished\n" in text
+
+
+class Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_on_a_terminal_the_block_redraws_in_place_and_its_final_state_stays():
+    stream = Terminal()
+    with LiveView(interval=3600.0, stream=stream) as view:
+        for step in range(3):
+            view.show([f"run a {step}/2", f"run b {step}/2"])
+        view.message("[1/2] finished a")
+    text = stream.getvalue()
+    assert "[1/2] finished a" in text
+    # after the live block, its final state once, as plain lines
+    assert text.rstrip().endswith("run a 2/2\nrun b 2/2")
+    assert "--- sweep progress" not in text

@@ -1,0 +1,229 @@
+"""
+``sgfd-zoo study SPEC``: a study from a spec file checked into the repository (``studies/<name>/spec.yml``).
+
+It runs the spec's sweep (algorithms x envs x seeds with its training flags; resumable: run the same command
+again to continue), evaluates every run on every split, and writes the compact results next to the spec: the
+paper-style tables (``results.*``), the aggregate statistics (``scores.csv``, ``aggregate.*``), their figures
+and the diagnostics of SGFD's weights over training (``plots/``), each run's evaluation files and logged SGFD
+figures (``runs/``), the exact command and the package versions. Models, replay buffers and checkpoints stay
+in the log folder.
+
+A spec (yaml):
+
+    name: mt-state
+    description: what the study asks
+    algos: [sgfd_sac, sac]
+    envs: [SGFD/MT-walker-walk-v0]
+    seeds: [0, 1, 2, 3, 4]
+    train: [--quick, -n, "30000", --eval-freq, "5000"]   # flags of every run's sgfd-zoo train
+    n_episodes: 10                                          # final evaluation, per split
+    reference: sgfd_sac                                     # whose probability of improvement is reported
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import platform
+import shlex
+import shutil
+import sys
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from zoo import sweep
+from zoo.algos import SGFD_ALGOS, algo_sort_key, column_name
+from zoo.arguments import ZooError, check_at_least, checked_names
+from zoo.runs import RunFolder, env_name, find_runs
+
+SPEC_KEYS = {"name", "description", "algos", "envs", "seeds", "train", "n_episodes", "reference"}
+# Logged figures kept per run (the rest of progress.csv stays in the log folder).
+DIAGNOSTICS = (
+    "sgfd/classifier_accuracy",
+    "sgfd/weight_ess",
+    "sgfd/weight_min",
+    "sgfd/weight_max",
+    "sgfd/decorrelation_loss_before",
+    "sgfd/decorrelation_loss_after",
+    "train/critic_loss",
+    "train/actor_loss",
+    "train/ent_coef",
+)
+PACKAGES = ("sb3-sgfd", "stable-baselines3", "rl-zoo3", "torch", "gymnasium", "dm-control", "mujoco", "ray", "rliable")
+
+
+def read_spec(path: Path) -> dict[str, Any]:
+    """The spec at ``path``, checked: known keys, algorithm keys and env ids, seeds, a list of train flags."""
+    if not path.is_file():
+        raise ZooError(f"SPEC {path} is not a file (a study's spec.yml, e.g. studies/mt-state/spec.yml)")
+    spec = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(spec, dict):
+        raise ZooError(f"SPEC {path}: expected a mapping of {', '.join(sorted(SPEC_KEYS))}")
+    unknown = sorted(set(spec) - SPEC_KEYS)
+    if unknown:
+        raise ZooError(f"SPEC {path}: unknown key(s) {unknown}; a spec has {', '.join(sorted(SPEC_KEYS))}")
+    for key in ("name", "algos", "envs", "seeds"):
+        if not spec.get(key):
+            raise ZooError(f"SPEC {path}: {key} is required")
+    spec["algos"] = checked_names("algos", spec["algos"], list(SGFD_ALGOS))
+    import sgfd_envs
+
+    spec["envs"] = checked_names("envs", spec["envs"], list(sgfd_envs.SGFD_IDS))
+    if not all(isinstance(seed, int) and seed >= 0 for seed in spec["seeds"]):
+        raise ZooError(f"SPEC {path}: seeds must be integers >= 0, got {spec['seeds']}")
+    spec["train"] = [str(flag) for flag in spec.get("train") or []]
+    spec.setdefault("n_episodes", 10)
+    check_at_least("n_episodes", spec["n_episodes"], 1)
+    spec.setdefault("reference", spec["algos"][0])
+    return spec
+
+
+def sweep_arguments(spec: dict[str, Any], folder: Path) -> list[str]:
+    """The ``sgfd-zoo sweep`` arguments of a spec."""
+    argv = ["--algos", *spec["algos"], "--envs", *spec["envs"], "--seeds", *map(str, spec["seeds"])]
+    argv += ["-f", str(folder), "--n-episodes", str(spec["n_episodes"]), "--reference", spec["reference"]]
+    return [*argv, *spec["train"], "--no-progress", "--verbose", "0"]
+
+
+def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[Path]:
+    """Copy the compact results of the log folder ``folder`` into ``out`` (the spec's folder)."""
+    written = []
+    for name in ("results.csv", "results.md", "scores.csv", "aggregate.csv", "aggregate.md"):
+        if (folder / name).exists():
+            written.append(Path(shutil.copy2(folder / name, out / name)))
+    plots = out / "plots"
+    plots.mkdir(exist_ok=True)
+    for png in sorted((folder / "plots").glob("*.png")):
+        written.append(Path(shutil.copy2(png, plots / png.name)))
+    runs = find_runs(folder, spec["algos"], spec["envs"])
+    for run in runs:
+        target = out / "runs" / run.algo / run.path.name
+        target.mkdir(parents=True, exist_ok=True)
+        for npz in sorted(run.path.glob("evaluations_*.npz")):
+            written.append(Path(shutil.copy2(npz, target / npz.name)))
+        shutil.copy2(run.config_dir / "config.yml", target / "config.yml")
+        written.append(write_diagnostics(run, target / "diagnostics.csv"))
+    written += diagnostics_figures(runs, plots)
+    (out / "command.txt").write_text(command + "\n")
+    (out / "versions.txt").write_text(versions())
+    return [*written, out / "command.txt", out / "versions.txt"]
+
+
+def write_diagnostics(run: RunFolder, path: Path) -> Path:
+    """The run's logged SGFD and loss figures over training, one row per logged step."""
+    columns = {key: dict(zip(*run.log(key), strict=True)) for key in DIAGNOSTICS}
+    columns = {key: values for key, values in columns.items() if values}
+    steps = sorted({step for values in columns.values() for step in values})
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["timesteps", *columns])
+        for step in steps:
+            writer.writerow([step, *(f"{values[step]:.6g}" if step in values else "" for values in columns.values())])
+    return path
+
+
+def diagnostics_figures(runs: list[RunFolder], out: Path) -> list[Path]:
+    """Per env: the classifier's accuracy, the weights' ESS and their range over training, per algorithm
+    (mean over seeds, and each seed faintly)."""
+    from matplotlib.figure import Figure
+
+    from zoo.plot import mean_and_band
+
+    panels = (("sgfd/classifier_accuracy", "classifier accuracy"), ("sgfd/weight_ess", "weights' ESS / n"))
+    panels += (("sgfd/weight_max", "largest weight"), ("sgfd/weight_min", "smallest weight"))
+    written = []
+    for env_id in sorted({run.env_id for run in runs}):
+        fig = Figure(figsize=(4 * len(panels), 3.2), layout="constrained")
+        axes = fig.subplots(1, len(panels))
+        drawn = False
+        for ax, (key, label) in zip(axes, panels, strict=True):
+            for algo in sorted({run.algo for run in runs if run.env_id == env_id}, key=algo_sort_key):
+                curves = [run.log(key) for run in runs if run.env_id == env_id and run.algo == algo]
+                curves = [curve for curve in curves if len(curve[0]) > 0]
+                if not curves:
+                    continue
+                steps, mean, _ = mean_and_band(curves)
+                (line,) = ax.plot(steps, mean, marker=".", label=f"{column_name(algo)} ({len(curves)})")
+                for run_steps, values in curves:
+                    ax.plot(run_steps, values, color=line.get_color(), alpha=0.15, linewidth=0.8)
+                drawn = True
+            ax.set_title(label, fontsize=9)
+            ax.set_xlabel("environment steps", fontsize=8)
+            ax.grid(alpha=0.3)
+        if not drawn:
+            continue
+        axes[0].legend(fontsize=7)
+        fig.suptitle(
+            f"{env_id}: SGFD's classifier and weights over training (mean over seeds, seeds faint)", fontsize=9
+        )
+        path = out / f"diagnostics_{env_name(env_id)}.png"
+        fig.savefig(path, dpi=100)
+        written.append(path)
+    return written
+
+
+def versions() -> str:
+    """Python, the platform and the versions of the packages that decide the numbers."""
+    import torch
+
+    lines = [f"python {platform.python_version()}", f"platform {platform.platform()}", f"cpu count {_cpus()}"]
+    lines.append(f"torch threads per run: 1 (sweep --cpus-per-run 1); torch {torch.__version__}")
+    for package in PACKAGES:
+        try:
+            lines.append(f"{package}=={metadata.version(package)}")
+        except metadata.PackageNotFoundError:
+            lines.append(f"{package}: not installed")
+    return "\n".join(lines) + "\n"
+
+
+def _cpus() -> int:
+    import os
+
+    return os.cpu_count() or 1
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(
+        prog="sgfd-zoo study", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("spec", type=Path, help="the study's spec.yml; results go to its folder")
+    parser.add_argument("-f", "--folder", type=Path, help="log folder of the runs (default: logs/studies/<name>)")
+    parser.add_argument("--export-only", action="store_true", help="no training: evaluate and export what is there")
+    parser.add_argument("--progress-interval", type=float, default=60.0, help="seconds between progress blocks")
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        raise ZooError(f"unknown option(s) {extra}: training flags belong in the spec's train list")
+    spec = read_spec(args.spec)
+    folder = (args.folder or Path("logs/studies") / spec["name"]).resolve()
+    out = args.spec.parent
+    command = shlex.join(["sgfd-zoo", "study", *argv])
+    sweep_argv = [*sweep_arguments(spec, folder), "--progress-interval", str(args.progress_interval)]
+    if args.export_only:
+        if not find_runs(folder, spec["algos"], spec["envs"]):
+            raise ZooError(f"--export-only: no finished run under {folder}")
+        from zoo import evaluate
+
+        evaluate_argv = ["-f", str(folder), "--algo", *spec["algos"], "--env", *spec["envs"]]
+        evaluate.main([*evaluate_argv, "--n-episodes", str(spec["n_episodes"]), "--reference", spec["reference"]])
+        status = 0
+    else:
+        print(
+            f"study {spec['name']}: {len(spec['algos'])} algos x {len(spec['envs'])} envs x {len(spec['seeds'])} seeds"
+        )
+        status = sweep.main(sweep_argv)
+    written = export(spec, folder, out, command)
+    print(f"study {spec['name']}: wrote {len(written)} files to {out}")
+    if (out / "aggregate.md").exists():
+        print((out / "aggregate.md").read_text())
+    finished = len(find_runs(folder, spec["algos"], spec["envs"]))
+    total = len(spec["algos"]) * len(spec["envs"]) * len(spec["seeds"])
+    if finished < total:
+        print(f"study {spec['name']}: {finished} of {total} runs finished; run the same command to continue")
+    return status if finished == total or status else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
