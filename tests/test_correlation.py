@@ -84,8 +84,12 @@ def test_study_png_shows_three_heat_maps(walker_study):
     # Each panel is a 10x10 grid drawn with the Blues map: its darkest cells are the diagonal's |r| = 1.
     blue = (image[:, :, 0].astype(int) - image[:, :, 2].astype(int)) > 80
     columns = np.flatnonzero(blue.any(axis=0))
-    gaps = np.flatnonzero(np.diff(columns) > 20)
-    assert len(gaps) >= 2  # at least three separate blue regions across the width (+ colour bar)
+    regions = np.split(columns, np.flatnonzero(np.diff(columns) > 20) + 1)
+    # three panels of equal width, each over a fifth of the figure, then the narrow colour bar
+    widths = [len(region) for region in regions]
+    assert len(widths) == 4, widths
+    assert min(widths[:3]) > 0.2 * width and max(widths[:3]) - min(widths[:3]) <= 2
+    assert widths[3] < 0.05 * width
 
 
 def test_report_prints_the_figures_and_goals():
