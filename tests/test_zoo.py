@@ -203,9 +203,11 @@ def test_zoo_error_reports_missing_checkpoint_for_resume(tmp_path):
 @pytest.mark.parametrize("algo", ["sgfd_sac", "dbc", "ambs", "ted", "sgqn"])
 def test_a_killed_run_resumes_from_its_last_checkpoint(algo, tmp_path):
     logs = tmp_path / "logs"
-    params = (
-        TINY_PARAMS if algo == "sgfd_sac" else ["-params", "learning_starts:200", "policy_kwargs:dict(net_arch=[32])"]
-    )
+    params = TINY_PARAMS if algo == "sgfd_sac" else ["-params", "learning_starts:200", "batch_size:32"]
+    if algo == "sgqn":  # pixels: a small encoder
+        params += ["policy_kwargs:dict(net_arch=[32], features_extractor_kwargs=dict(features_dim=16, n_filters=8))"]
+    elif algo != "sgfd_sac":
+        params += ["policy_kwargs:dict(net_arch=[32], features_extractor_kwargs=dict(features_dim=16))"]
     train_args = ["train", "--algo", algo, "--env", ENV_ID, "-f", str(logs), "--seed", "0", *TINY[:1]]
     train_args += ["--num-threads", "1", "--no-progress", "--verbose", "0", *params, "--eval-episodes", "1"]
     process = subprocess.Popen(

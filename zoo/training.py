@@ -94,9 +94,9 @@ def enjoy(argv: Sequence[str]) -> int:
         with command_line("sgfd-zoo enjoy", argv):
             rl_zoo3.enjoy.enjoy()
     except ValueError as error:
-        if "spaces do not match" not in str(error):
+        if not any(sign in str(error) for sign in ("spaces do not match", "Unexpected observation shape")):
             raise
-        # SB3's check when an env does not fit the agent: most often --env-kwargs that change the observations.
+        # SB3's checks when an env does not fit the agent: most often --env-kwargs that change the observations.
         raise ZooError(
             "the env does not give the observations the agent was trained on (leave out --env-kwargs that change "
             f"obs_type, image_size or observe_parameter; split:'...' and domain:... are fine): {error}"
