@@ -197,13 +197,13 @@ class EncoderSAC(SAC):
             )
         # Augmentation and the objectives draw from generators of their own, seeded from the model's seed:
         # SAC's random streams stay those of SB3's SAC.
-        seeds = np.random.default_rng(self.seed).integers(2**31, size=2)
+        seeds = np.random.default_rng(self.seed).integers(2**31, size=3)[1:]  # the first is SGFD_SAC's RFF seed
         self._augment_generator = th.Generator(device=self.device).manual_seed(int(seeds[0]))
         self.representation_model = representation_model
         if representation_model is not None:
             representation_model.generator = th.Generator(device=self.device).manual_seed(int(seeds[1]))
             with th.random.fork_rng(devices=[]):
-                th.manual_seed(int(seeds[1]))
+                th.random.default_generator.manual_seed(int(seeds[1]))  # the CPU one: CUDA streams stay SAC's
                 representation_model.setup(self)
             representation_model.to(self.device)
         self._encoder_pairs, self._head_pairs = self._target_pairs()

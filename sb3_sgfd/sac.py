@@ -230,8 +230,8 @@ class SGFD_SAC(EncoderSAC):
         # The RFF draw of update k is seeded from (rff_seed, k): reproducible, and the seed is all that
         # a checkpoint needs to continue the same sequence.
         if self.rff_seed is None:
-            # The third draw of the seed's stream: EncoderSAC's augmentation and objective take the first two.
-            self.rff_seed = int(np.random.default_rng(self.seed).integers(2**31, size=3)[2])
+            # The first draw of the seed's stream (EncoderSAC's augmentation and objective take the next two).
+            self.rff_seed = int(np.random.default_rng(self.seed).integers(2**31, size=3)[0])
         self._rff_generator = th.Generator(device=self.device)
         if self.reweight_memory is not None and self.weight_memory is None:
             self.weight_memory = WeightMemory(self.reweight_memory)

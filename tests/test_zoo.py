@@ -71,6 +71,15 @@ def test_train_both_algorithms_then_evaluate_and_plot(tmp_path):
         assert heading in table
     header = next(line for line in table.splitlines() if "Task" in line)
     assert [cell.strip() for cell in header.strip("|").split("|")] == ["Task", "SGFD", "DR"]
+    # Evaluated again with the same settings: each run's kept evaluation is reused, not recomputed.
+    kept = sgfd_run / "final_evaluation.json"
+    stamp = kept.stat().st_mtime_ns
+    again = zoo("evaluate", "-f", str(logs), "--n-episodes", "2")
+    assert kept.stat().st_mtime_ns == stamp and read_results(logs / "results.csv") == rows
+    assert table in again.stdout
+    zoo("evaluate", "-f", str(logs), "--n-episodes", "1")  # other settings: evaluated anew
+    assert kept.stat().st_mtime_ns > stamp
+    assert all(row["n_episodes"] == "1" for row in read_results(logs / "results.csv"))
 
     zoo("plot", "-f", str(logs))
     png = logs / "plots" / f"{RUN_NAME}.png"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import json
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -22,11 +23,20 @@ RESULT_FIELDS = ["algo", "env", "split", "seed", "mean_reward", "std_reward", "n
 
 
 def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[str, Any]]:
-    """Mean and std of the episode return of ``run``'s final model on each split of its env."""
+    """Mean and std of the episode return of ``run``'s final model on each split of its env.
+
+    The result is kept in the run's folder and reused while the model, ``n_episodes`` and ``seed`` are the
+    same: evaluating a grown sweep evaluates only its new runs.
+    """
     from stable_baselines3.common.evaluation import evaluate_policy
 
     from zoo.experiment import wrap_like_training
 
+    key = {"n_episodes": n_episodes, "seed": seed, "model_mtime_ns": run.model_path.stat().st_mtime_ns}
+    if run.final_evaluation.exists():
+        kept = json.loads(run.final_evaluation.read_text())
+        if kept.get("key") == key:
+            return [{**row, "run": str(run.path)} for row in kept["rows"]]
     model = run.load_model()
     rows = []
     for split in sgfd_envs.splits(run.env_id):
@@ -46,6 +56,7 @@ def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[st
                 "run": str(run.path),
             }
         )
+    run.final_evaluation.write_text(json.dumps({"key": key, "rows": rows}, indent=1))
     return rows
 
 

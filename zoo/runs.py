@@ -6,6 +6,7 @@
         evaluations_<split>.npz                 evaluations during training, per split
         progress.csv, progress_from_<n>.csv     everything logged (a resumed run continues in a new file)
         checkpoint.json (+ the files it names)  the newest checkpoint
+        final_evaluation.json                   sgfd-zoo evaluate's result for the final model (reused while it fits)
     <log folder>/<algo>/<EnvName>_<id>.log      a sweep run's output, beside its folder
 
 Light on imports: plotting and the sweep's planning read runs without torch; ``load_model`` imports it.
@@ -82,6 +83,11 @@ class RunFolder:
     @property
     def model_path(self) -> Path:
         return self.path / f"{env_name(self.env_id)}.zip"
+
+    @property
+    def final_evaluation(self) -> Path:
+        """Where ``sgfd-zoo evaluate`` keeps the final model's evaluation, to reuse it."""
+        return self.path / "final_evaluation.json"
 
     @property
     def config_dir(self) -> Path:
