@@ -7,7 +7,7 @@ import io
 import sgfd_envs
 from sb3_sgfd import EncoderSAC
 from zoo.callbacks import ProgressCallback
-from zoo.progress import LiveView, ProgressBoard, duration, progress_line
+from zoo.progress import LiveView, ProgressBoard, duration, progress_block, progress_line
 
 
 def test_a_run_reports_its_steps_rate_and_end():
@@ -39,6 +39,14 @@ def test_progress_lines_show_steps_rate_eta_and_the_latest_returns():
     assert progress_line("sac MT-walker-walk seed 1", None).endswith("waiting")
     assert progress_line("x", report, status="FAILED").endswith("FAILED")
     assert (duration(3725), duration(245), duration(7)) == ("1h02m", "4m05s", "7s")
+
+
+def test_the_block_shows_the_runs_under_way_and_counts_the_others():
+    names = ["a", "b", "c", "d"]
+    reports = {"a": {"steps": 10, "total": 20}, "b": {"steps": 20, "total": 20}, "c": {"steps": 5, "total": 20}}
+    lines = progress_block(names, reports, {"b": "finished after 1m00s", "c": "FAILED"})
+    assert len(lines) == 2 and lines[0].startswith("a ") and "10/20" in lines[0]
+    assert lines[1] == "1 running, 1 waiting, 1 finished, 1 failed"
 
 
 def test_in_a_log_the_block_is_printed_at_the_interval_and_at_the_end():

@@ -56,6 +56,22 @@ def progress_line(name: str, report: dict[str, Any] | None, status: str = "") ->
     return f"{line}  eval: {evaluated}" if evaluated else line
 
 
+def progress_block(names: Sequence[str], reports: dict[str, dict[str, Any]], status: dict[str, str]) -> list[str]:
+    """The lines of the runs under way (reported, not ended) and one line counting the others.
+
+    :param names: every run of the sweep, in order
+    :param reports: the latest report of each run that sent one
+    :param status: the runs that ended, with their status (``finished ...`` or ``FAILED``)
+    """
+    running = [name for name in names if name in reports and name not in status]
+    lines = [progress_line(name, reports[name]) for name in running]
+    finished = sum(1 for name in names if status.get(name, "").startswith("finished"))
+    failed = sum(1 for name in names if status.get(name) == "FAILED")
+    waiting = len(names) - len(running) - finished - failed
+    lines.append(f"{len(running)} running, {waiting} waiting, {finished} finished, {failed} failed")
+    return lines
+
+
 class LiveView:
     """Shows a block of lines: redrawn in place on a terminal, printed every ``interval`` seconds otherwise.
 

@@ -28,7 +28,7 @@ import sgfd_envs  # before anything imports dm_control: it picks MuJoCo's headle
 from zoo import evaluate, training
 from zoo.algos import SGFD_ALGOS
 from zoo.arguments import ZooError, checked_names, flag_value, has_flag
-from zoo.progress import LiveView, ProgressBoard, duration, progress_line, returns_text
+from zoo.progress import LiveView, ProgressBoard, duration, progress_block, returns_text
 from zoo.runs import RunFolder, find_runs, read_checkpoint, runs_by_id
 
 # Train flags the sweep sets per run itself, and what to use instead.
@@ -370,8 +370,7 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
                             + (f": {evaluated}" if evaluated else "")
                             + f" ({job.run_dir})"
                         )
-                lines = [progress_line(job.name, reports.get(job.name), status.get(job.name, "")) for job in jobs]
-                view.show(lines, force=not pending)
+                view.show(progress_block([job.name for job in jobs], reports, status), force=not pending)
         return failures
     finally:
         ray.shutdown()
