@@ -32,6 +32,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from zoo import sweep
@@ -107,6 +108,8 @@ def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[
         shutil.copy2(run.config_dir / "config.yml", target / "config.yml")
         written.append(write_diagnostics(run, target / "diagnostics.csv"))
     written += diagnostics_figures(runs, plots)
+    (out / "diagnostics.md").write_text(diagnostics_summary(runs))
+    written.append(out / "diagnostics.md")
     (out / "command.txt").write_text(command + "\n")
     (out / "versions.txt").write_text(versions())
     return [*written, out / "command.txt", out / "versions.txt"]
@@ -163,6 +166,47 @@ def diagnostics_figures(runs: list[RunFolder], out: Path) -> list[Path]:
         fig.savefig(path, dpi=100)
         written.append(path)
     return written
+
+
+def diagnostics_summary(runs: list[RunFolder]) -> str:
+    """Markdown, per env and algorithm (mean ± std over seeds): when the classifier first reached its threshold,
+    the weights' ESS and range once it had, and the evaluation returns at the end of training."""
+    lines = [
+        "| env | algo | seeds | classifier ready at step | ESS / n | smallest weight | largest weight | "
+        "final train return | final extrapolation return |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for env_id in sorted({run.env_id for run in runs}):
+        for algo in sorted({run.algo for run in runs if run.env_id == env_id}, key=algo_sort_key):
+            group = [run for run in runs if run.env_id == env_id and run.algo == algo]
+            ready, ess, low, high = [], [], [], []
+            for run in group:
+                steps, accuracy = run.log("sgfd/classifier_accuracy")
+                threshold = float(run.config.get("accuracy_threshold", 0.9))
+                if len(steps) and (accuracy >= threshold).any():
+                    ready.append(float(steps[np.argmax(accuracy >= threshold)]))
+                for key, values in (("sgfd/weight_ess", ess), ("sgfd/weight_min", low), ("sgfd/weight_max", high)):
+                    logged = run.log(key)[1]
+                    if len(logged):
+                        values.append(float(logged.mean()))
+            finals = {split: [_final_return(run, split) for run in group] for split in ("train", "extrapolation")}
+            cells = [_mean_std(ready, "{:.0f}"), _mean_std(ess), _mean_std(low), _mean_std(high)]
+            cells += [_mean_std([v for v in finals[split] if v is not None], "{:.1f}") for split in finals]
+            lines.append(
+                f"| {env_id.split('/')[-1]} | {column_name(algo)} | {len(group)} | " + " | ".join(cells) + " |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def _final_return(run: RunFolder, split: str) -> float | None:
+    evaluations = run.evaluations(split)
+    return None if evaluations is None or not len(evaluations["results"]) else float(evaluations["results"][-1].mean())
+
+
+def _mean_std(values: list[float], form: str = "{:.2f}") -> str:
+    if not values:
+        return "–"
+    return f"{form.format(np.mean(values))} ± {form.format(np.std(values))}"
 
 
 def versions() -> str:
