@@ -41,6 +41,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecTranspose
 
 import sgfd_envs
 from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, AMBSPolicy, CnnPolicy, DomainReplayBuffer, MlpPolicy
+from sb3_sgfd.saliency import classifier_accuracy, feature_probabilities
 from sgfd_envs.backgrounds import overlay_bank
 
 PHASES = ("steady", "classifier", "mixed")
@@ -165,6 +166,34 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> None
     else:
         ratios = ", ".join(f"{phase} {statistics.median(times[f'SGFD {phase}']) / base:.2f}x" for phase in PHASES)
         print(f"SGFD / SAC ({name}): {ratios} (goal <= 1.2x)")
+        print_components(steady, args.batch_size, device)
+
+
+def print_components(model: SGFD_SAC, batch_size: int, device: th.device, repeats: int = 50) -> None:
+    """Where SGFD's steady-state time goes: its parts on one replay batch, each timed alone (median)."""
+    batch = model.replay_buffer.sample(batch_size)
+    z = model.encode(batch.observations)
+    generator = th.Generator(device=device).manual_seed(0)
+    parts = {
+        "encode (no grad)": lambda: model.encode(batch.observations),
+        "classifier accuracy": lambda: classifier_accuracy(model.classifier, z, batch.domains),
+        "saliency p(Z_i)": lambda: feature_probabilities(model.classifier, z),
+        f"weight solver ({model.reweight_iters} iterations, d = {z.shape[1]})": lambda: model.sample_weights(
+            z, generator
+        ),
+    }
+    print("| SGFD part, alone | ms |\n|---|---|")
+    for label, part in parts.items():
+        for _ in range(5):
+            part()
+        times = []
+        for _ in range(repeats):
+            synchronize(device)
+            start = time.perf_counter()
+            part()
+            synchronize(device)
+            times.append(time.perf_counter() - start)
+        print(f"| {label} | {1e3 * statistics.median(times):.2f} |")
 
 
 def main() -> None:
