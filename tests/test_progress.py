@@ -6,17 +6,21 @@ import io
 
 import sgfd_envs
 from sb3_sgfd import EncoderSAC
-from zoo.callbacks import ProgressCallback
+from zoo.callbacks import MultiSplitEvalCallback, ProgressCallback
 from zoo.progress import LiveView, ProgressBoard, duration, progress_block, progress_line
 
 
-def test_a_run_reports_its_steps_rate_and_end():
+def test_a_run_reports_its_steps_rate_end_and_latest_evaluation():
     reports: list[dict] = []
     env = sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", obs_type="state")
     model = EncoderSAC("MlpPolicy", env, learning_starts=50, batch_size=16, policy_kwargs=dict(net_arch=[16]))
-    model.learn(120, callback=ProgressCallback(reports.append, total_timesteps=120, interval=0.0))
-    assert reports[0]["steps"] == 0 and not reports[0]["done"]
+    evaluation_env = sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", split="extrapolation", obs_type="state")
+    evaluation = MultiSplitEvalCallback({"extrapolation": evaluation_env}, eval_freq=30, n_eval_episodes=1, verbose=0)
+    progress = ProgressCallback(reports.append, 120, evaluation.latest_returns, interval=0.0)
+    model.learn(120, callback=[evaluation, progress])  # one evaluation, at the last step
+    assert reports[0]["steps"] == 0 and not reports[0]["done"] and "returns" not in reports[0]
     assert reports[-1] == {**reports[-1], "steps": 120, "total": 120, "done": True}
+    assert reports[-1]["returns"] == evaluation.latest_returns() and "extrapolation" in reports[-1]["returns"]
     steps = [report["steps"] for report in reports]
     assert steps == sorted(steps) and len(reports) > 3
     assert reports[-1]["steps_per_second"] > 0

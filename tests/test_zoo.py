@@ -283,6 +283,9 @@ def test_the_quick_main_job_trains_both_evaluates_and_plots(tmp_path):
     assert "sweep: 4 trained, 0 already finished, 0 failed" in result.stdout  # two seeds by default
     # Progress while it runs (a log: the block at the end), and no Ray noise.
     assert "0 running, 0 waiting, 4 finished, 0 failed" in result.stdout
+    # each run's end, with its latest evaluation returns
+    finished = [line for line in result.stdout.splitlines() if "] finished sgfd_sac on" in line]
+    assert len(finished) == 2 and all("extrapolation " in line for line in finished)
     assert "Ray" not in result.stdout + result.stderr
     # The aggregate statistics over the two seeds, with intervals, and their figures.
     assert "# interpolation: normalised score" in result.stdout and "P(SGFD > algo)" in result.stdout

@@ -87,6 +87,10 @@ class MultiSplitEvalCallback(BaseCallback):
         self.logger.dump(self.num_timesteps)
         return means
 
+    def latest_returns(self) -> dict[str, float]:
+        """The mean return of each split's latest evaluation (resumed runs: their earlier ones count)."""
+        return {split: float(np.mean(h["results"][-1])) for split, h in self.history.items() if h["results"]}
+
     def _on_training_end(self) -> None:
         for env in self.eval_envs.values():
             env.close()
@@ -190,13 +194,21 @@ class ProgressCallback(BaseCallback):
 
     :param reporter: called with a dict of figures; must return quickly (a Ray actor's ``.remote``)
     :param total_timesteps: steps the run trains for in all
+    :param latest_returns: gives the latest evaluation return of each split (``MultiSplitEvalCallback``)
     :param interval: seconds between reports
     """
 
-    def __init__(self, reporter: Callable[[dict[str, Any]], None], total_timesteps: int, interval: float = 5.0):
+    def __init__(
+        self,
+        reporter: Callable[[dict[str, Any]], None],
+        total_timesteps: int,
+        latest_returns: Callable[[], dict[str, float]] | None = None,
+        interval: float = 5.0,
+    ):
         super().__init__()
         self.reporter = reporter
         self.total_timesteps = int(total_timesteps)
+        self.latest_returns = latest_returns
         self.interval = interval
         self._last_report = 0.0
         self._start: tuple[float, int] | None = None
@@ -218,11 +230,7 @@ class ProgressCallback(BaseCallback):
         started, start_steps = self._start or (now, self.num_timesteps)
         elapsed = now - started
         rate = (self.num_timesteps - start_steps) / elapsed if elapsed > 0 else 0.0
-        returns = {
-            key.removeprefix("eval/").removesuffix("/mean_reward"): float(value)
-            for key, value in self.logger.name_to_value.items()
-            if key.startswith("eval/") and key.endswith("/mean_reward")
-        }
+        returns = self.latest_returns() if self.latest_returns is not None else {}
         report = {"steps": self.num_timesteps, "total": self.total_timesteps, "steps_per_second": rate, "done": done}
         if returns:
             report["returns"] = returns

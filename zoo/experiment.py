@@ -207,8 +207,6 @@ class SGFDExperimentManager(ExperimentManager):
     def create_callbacks(self) -> None:
         if self.show_progress:
             self.callbacks.append(ProgressBarCallback())
-        if self.progress_reporter is not None:
-            self.callbacks.append(ProgressCallback(self.progress_reporter, self.n_timesteps))
         log_name = (
             "progress.csv" if self.checkpoint is None else f"progress_from_{self.checkpoint['num_timesteps']}.csv"
         )
@@ -227,6 +225,10 @@ class SGFDExperimentManager(ExperimentManager):
                     verbose=self.verbose,
                 )
             )
+        if self.progress_reporter is not None:
+            evaluation = next((c for c in self.callbacks if isinstance(c, MultiSplitEvalCallback)), None)
+            latest = None if evaluation is None else evaluation.latest_returns
+            self.callbacks.append(ProgressCallback(self.progress_reporter, self.n_timesteps, latest))
 
     # -- resuming --------------------------------------------------------------------------------
 
