@@ -174,8 +174,9 @@ def test_sweep_trains_each_seed_into_its_own_folder_reports_failures_and_evaluat
         assert f"(log: {log})" in summary
         assert "resuming from its checkpoint" in log.read_text() and "Traceback" in log.read_text()
         assert not (folder / "sac" / f"{NAME}_{seed + 1}" / f"{NAME}.zip").exists()
-    # The progress block: one line per run, its final state.
-    assert "sgfd_sac walker-walk seed 1" in out and "finished after" in out and "FAILED" in out
+    # A line per run as it ends, and the final progress block counts them all.
+    assert f"finished sgfd_sac on {ENV} seed 1" in out and f"FAILED sac on {ENV} seed 0" in out
+    assert out.rsplit("--- sweep progress ", 1)[1].splitlines()[1] == "0 running, 0 waiting, 2 finished, 2 failed"
     # The tables cover what finished.
     with (folder / "results.csv").open() as handle:
         rows = list(csv.DictReader(handle))

@@ -61,11 +61,11 @@ def progress_block(names: Sequence[str], reports: dict[str, dict[str, Any]], sta
 
     :param names: every run of the sweep, in order
     :param reports: the latest report of each run that sent one
-    :param status: the runs that ended, with their status (``finished ...`` or ``FAILED``)
+    :param status: the runs that ended, with their status (``finished`` or ``FAILED``)
     """
     running = [name for name in names if name in reports and name not in status]
     lines = [progress_line(name, reports[name]) for name in running]
-    finished = sum(1 for name in names if status.get(name, "").startswith("finished"))
+    finished = sum(1 for name in names if status.get(name) == "finished")
     failed = sum(1 for name in names if status.get(name) == "FAILED")
     waiting = len(names) - len(running) - finished - failed
     lines.append(f"{len(running)} running, {waiting} waiting, {finished} finished, {failed} failed")

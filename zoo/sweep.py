@@ -28,7 +28,7 @@ import sgfd_envs  # before anything imports dm_control: it picks MuJoCo's headle
 from zoo import evaluate, training
 from zoo.algos import SGFD_ALGOS
 from zoo.arguments import ZooError, checked_names, flag_value, has_flag
-from zoo.progress import LiveView, ProgressBoard, duration, progress_block, returns_text
+from zoo.progress import LiveView, ProgressBoard, progress_block, returns_text
 from zoo.runs import RunFolder, find_runs, read_checkpoint, runs_by_id
 
 # Train flags the sweep sets per run itself, and what to use instead.
@@ -347,7 +347,6 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
         pending = {task.options(name=f"sweep {job}").remote(job, train_args, cwd, board): job for job in jobs}
         status: dict[str, str] = {}
         failures = []
-        started = time.monotonic()
         with LiveView(args.progress_interval) as view:
             while pending:
                 done, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
@@ -363,7 +362,7 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
                         status[job.name] = "FAILED"
                         view.message(f"{count} FAILED {job}: {failures[-1][1]} (log: {job.log_file})")
                     else:
-                        status[job.name] = f"finished after {duration(time.monotonic() - started)}"
+                        status[job.name] = "finished"
                         evaluated = returns_text(report)
                         view.message(
                             f"{count} finished {job}{' (resumed)' if resumed else ''}"
