@@ -85,3 +85,8 @@ def test_a_study_trains_evaluates_and_writes_its_compact_results_next_to_its_spe
     with contextlib.redirect_stdout(again):
         assert zoo_main(["study", str(spec), "-f", str(logs)]) == 0
     assert "0 trained, 2 already finished" in again.getvalue()
+    # an export-only pass records the study's command, not its own
+    command = (study / "command.txt").read_text()
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert zoo_main(["study", str(spec), "-f", str(logs), "--export-only"]) == 0
+    assert (study / "command.txt").read_text() == command

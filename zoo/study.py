@@ -243,7 +243,8 @@ def main(argv: list[str]) -> int:
     spec = read_spec(args.spec)
     folder = (args.folder or Path("logs/studies") / spec["name"]).resolve()
     out = args.spec.parent
-    command = shlex.join(["sgfd-zoo", "study", *argv])
+    # The command that trains and exports (an --export-only pass records the study's own command, not itself).
+    command = shlex.join(["sgfd-zoo", "study", *(arg for arg in argv if arg != "--export-only")])
     sweep_argv = [*sweep_arguments(spec, folder), "--progress-interval", str(args.progress_interval)]
     if args.export_only:
         if not find_runs(folder, spec["algos"], spec["envs"]):
