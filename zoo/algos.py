@@ -51,8 +51,13 @@ SGFD_ALGOS: dict[str, ZooAlgo] = {
     "sgfd_sac_no_rff": ZooAlgo(SGFD, "SGFD w/o RFF", "sgfd_sac", {"use_rff": False}),
     "sgfd_sac_no_saliency": ZooAlgo(SGFD, "SGFD w/o saliency", "sgfd_sac", {"use_saliency": False}),
     # Algorithm 1 (line 18 updates Q with the unweighted eq. 1) and the official code weight the actor only.
-    "sgfd_sac_actor_only": ZooAlgo(SGFD, "SGFD actor-only", "sgfd_sac", {"reweight_critic": False}),
-    "sgfd_sac_critic_only": ZooAlgo(SGFD, "SGFD critic-only", "sgfd_sac", {"reweight_actor": False}),
+    # Both switches are set, so that each variant stays itself whatever the yaml's defaults are.
+    "sgfd_sac_actor_only": ZooAlgo(
+        SGFD, "SGFD actor-only", "sgfd_sac", {"reweight_critic": False, "reweight_actor": True}
+    ),
+    "sgfd_sac_critic_only": ZooAlgo(
+        SGFD, "SGFD critic-only", "sgfd_sac", {"reweight_critic": True, "reweight_actor": False}
+    ),
 }
 # Order of the tables' columns: the keys above, then any other in name order.
 ALGO_ORDER = list(SGFD_ALGOS)
