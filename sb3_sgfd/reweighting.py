@@ -244,7 +244,7 @@ def learn_sample_weights(
     (``loss_gradient``) and the SGD step (momentum, weight decay) is torch's, written out: no autograd and
     no host-device synchronisation inside the loop. Choices, measured with ``bench/decorrelation.py``
     (n = 128 from 4 domains, one domain feature tied to 4 others, mean |r| 0.63, d = 50, 20 seeds; the
-    defaults cut that |r| by 38% at ESS 0.56 n; d = 10: 43.5% at 0.54 n):
+    defaults cut that |r| by 33.7% at ESS 0.59 n; d = 10: 43.6% at 0.54 n):
 
     - ``covariance="weighted"`` is the covariance of the reweighted samples. Eq. 5 as printed ("literal",
       the covariance of the products w_k u_k) also counts the spread of the weights themselves, so its

@@ -126,8 +126,8 @@ def feature_probabilities(
     M is ``saliency_map`` (mean |d logit / d z_i| over the batch), divided by its largest entry when
     ``normalize`` is on. The paper's p = softmax(M) on the raw saliency (see below for its arguments)
     depends on how large the classifier's logits happen to be: in ``bench/decorrelation.py`` (d = 50, only
-    one domain feature) it gives that feature p = 1.000 for a trained classifier (max saliency 13), 0.555
-    for one stopped at accuracy 0.9 (max saliency 4.4), and 0.068, next to uniform 0.020, for the trained
+    one domain feature) it gives that feature p = 1.000 for a trained classifier (max saliency 13), 0.301
+    for one stopped at accuracy 0.9 (max saliency 3.3), and 0.068, next to uniform 0.020, for the trained
     one with logits scaled by 0.1: the guidance is lost, and the weights then removed 15% of the domain
     feature's correlation instead of 38%. Normalised, with temperature 0.1, the feature gets p >= 0.995 in
     all three cases; a feature at half the top saliency weighs e^-5 as much.
