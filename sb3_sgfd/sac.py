@@ -263,8 +263,9 @@ class SGFD_SAC(EncoderSAC):
             accuracy = classifier_accuracy(self.classifier, z, domains)
         self.classifier_ready = self.classifier_ready or accuracy >= self.accuracy_threshold
         self.record("sgfd/classifier_accuracy", accuracy)
-        if not self.classifier_ready or not (self.reweight_critic or self.reweight_actor):
-            return None, None
+        actor_step = update_index % self.actor_update_interval == 0
+        if not self.classifier_ready or not (self.reweight_critic or (self.reweight_actor and actor_step)):
+            return None, None  # (weights only for the actor: none on the steps it skips)
 
         self._rff_generator.manual_seed(self.rff_seed + update_index)
         weights, loss_before, loss_after = self.sample_weights(z, self._rff_generator, record=True)

@@ -1,3 +1,5 @@
+import math
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -74,6 +76,26 @@ def test_weights_multiply_the_critic_and_actor_losses(reweight_critic, reweight_
     assert actor_moved is not reweight_actor
     # The entropy-coefficient loss is SAC's, unweighted.
     assert not th.equal(ent_coef, model.log_ent_coef)
+
+
+class CountedWeights(ZeroWeights):
+    """Unit weights from the first step, counting the batches they were computed for."""
+
+    calls = 0
+
+    def sample_weights(self, z, generator=None, record=False):
+        self.calls += 1
+        return th.ones(len(z)), 1.0, 1.0
+
+
+@pytest.mark.parametrize(("reweight_critic", "expected"), [(True, 1.0), (False, 0.5)])
+def test_weights_for_the_actor_alone_are_computed_only_on_the_steps_it_learns(reweight_critic, expected):
+    model = CountedWeights(
+        "MlpPolicy", state_env(), reweight_critic=reweight_critic, actor_update_interval=2, classifier_start=0, **TINY
+    )
+    model.learn(400)
+    assert model._n_updates >= 50
+    assert model.calls == math.ceil(expected * model._n_updates)
 
 
 def test_learns_on_the_training_domains_and_its_weights_leave_one():

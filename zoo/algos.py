@@ -58,6 +58,8 @@ SGFD_ALGOS: dict[str, ZooAlgo] = {
     "sgfd_sac_critic_only": ZooAlgo(
         SGFD, "SGFD critic-only", "sgfd_sac", {"reweight_critic": True, "reweight_actor": False}
     ),
+    # Both losses weighted (Algorithm 1 as the design reads it; SGFD_SAC's own default).
+    "sgfd_sac_both": ZooAlgo(SGFD, "SGFD both", "sgfd_sac", {"reweight_critic": True, "reweight_actor": True}),
 }
 # Order of the tables' columns: the keys above, then any other in name order.
 ALGO_ORDER = list(SGFD_ALGOS)
