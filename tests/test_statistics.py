@@ -63,6 +63,11 @@ def test_aggregate_matches_rliables_metrics_and_its_intervals_hold_the_estimates
     improvement = by_key[("sac", f"{IMPROVEMENT}_of_sgfd_sac")]
     assert improvement["value"] == pytest.approx(1.0) and improvement["ci_low"] == pytest.approx(1.0)
     assert ("sgfd_sac", f"{IMPROVEMENT}_of_sgfd_sac") not in by_key
+    # the intervals are the same on every call with the same seed (and leave numpy's global RNG alone)
+    state = np.random.get_state()[1].copy()
+    assert aggregate(scores, reference="sgfd_sac", reps=500) == rows
+    assert np.array_equal(np.random.get_state()[1], state)
+    assert aggregate(scores, reference="sgfd_sac", reps=500, seed=1) != rows
     # a tie is a coin flip
     tie = aggregate(score_rows(results({"sgfd_sac": {TASKS[0]: [5.0] * 3}, "sac": {TASKS[0]: [5.0] * 3}})), reps=200)
     assert next(row for row in tie if row["metric"].startswith(IMPROVEMENT))["value"] == pytest.approx(0.5)

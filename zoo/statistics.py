@@ -74,13 +74,22 @@ def score_matrices(scores: Sequence[dict[str, Any]], split: str) -> tuple[dict[s
     return matrices, tasks
 
 
-def interval_estimates(*args: Any, **kwargs: Any) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """rliable's ``get_interval_estimates`` (stratified bootstrap), without arch's RandomState deprecation notice."""
+def interval_estimates(*args: Any, seed: int, **kwargs: Any) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """rliable's ``get_interval_estimates`` (stratified bootstrap), reproducible for a seed.
+
+    rliable's bootstrap draws its indices from numpy's global RNG (its ``random_state`` reaches arch only,
+    which does not draw them), so that RNG is seeded here and restored afterwards.
+    """
     from rliable import library as rly
 
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
-        return rly.get_interval_estimates(*args, **kwargs)
+    state = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
+            return rly.get_interval_estimates(*args, **kwargs)
+    finally:
+        np.random.set_state(state)
 
 
 def aggregate(
@@ -107,9 +116,7 @@ def aggregate(
         if not matrices:
             continue
         algos = sorted(matrices, key=algo_sort_key)
-        points, intervals = interval_estimates(
-            {algo: matrices[algo] for algo in algos}, measures, reps=reps, random_state=np.random.RandomState(seed)
-        )
+        points, intervals = interval_estimates({algo: matrices[algo] for algo in algos}, measures, reps=reps, seed=seed)
         for algo in algos:
             for index, metric in enumerate(METRICS):
                 low, high = intervals[algo][:, index]
@@ -118,7 +125,7 @@ def aggregate(
         pairs = {other: (matrices[best], matrices[other]) for other in algos if other != best}
         if pairs:
             probabilities, probability_cis = interval_estimates(
-                pairs, metrics.probability_of_improvement, reps=reps, random_state=np.random.RandomState(seed)
+                pairs, metrics.probability_of_improvement, reps=reps, seed=seed
             )
             for other in pairs:
                 low, high = np.asarray(probability_cis[other]).reshape(-1)[:2]
@@ -253,9 +260,7 @@ def write_figures(
             def iqm_over_time(scores: np.ndarray) -> np.ndarray:
                 return np.array([metrics.aggregate_iqm(scores[..., t]) for t in range(scores.shape[-1])])
 
-            iqm, iqm_cis = interval_estimates(
-                matrices, iqm_over_time, reps=max(reps // 10, 200), random_state=np.random.RandomState(seed)
-            )
+            iqm, iqm_cis = interval_estimates(matrices, iqm_over_time, reps=max(reps // 10, 200), seed=seed)
             ordered = sorted(matrices, key=algo_sort_key)
             fig, ax = plt.subplots(figsize=(5.5, 3.8))
             plot_utils.plot_sample_efficiency_curve(

@@ -49,6 +49,7 @@ DIAGNOSTICS = (
     "sgfd/weight_max",
     "sgfd/decorrelation_loss_before",
     "sgfd/decorrelation_loss_after",
+    "sgfd/top_saliency_feature",
     "train/critic_loss",
     "train/actor_loss",
     "train/ent_coef",
