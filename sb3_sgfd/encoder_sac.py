@@ -197,16 +197,23 @@ class EncoderSAC(SAC):
             )
         # Augmentation and the objectives draw from generators of their own, seeded from the model's seed:
         # SAC's random streams stay those of SB3's SAC.
-        seeds = np.random.default_rng(self.seed).integers(2**31, size=3)[1:]  # the first is SGFD_SAC's RFF seed
-        self._augment_generator = th.Generator(device=self.device).manual_seed(int(seeds[0]))
+        seeds = self._derived_seeds()
+        self._augment_generator = th.Generator(device=self.device).manual_seed(seeds["augmentation"])
         self.representation_model = representation_model
         if representation_model is not None:
-            representation_model.generator = th.Generator(device=self.device).manual_seed(int(seeds[1]))
+            representation_model.generator = th.Generator(device=self.device).manual_seed(seeds["representation"])
             with th.random.fork_rng(devices=[]):
-                th.random.default_generator.manual_seed(int(seeds[1]))  # the CPU one: CUDA streams stay SAC's
+                # the CPU generator: CUDA streams stay SAC's
+                th.random.default_generator.manual_seed(seeds["representation"])
                 representation_model.setup(self)
             representation_model.to(self.device)
         self._encoder_pairs, self._head_pairs = self._target_pairs()
+
+    def _derived_seeds(self) -> dict[str, int]:
+        """Seeds of the generators the additions to SAC draw from, all from the model's seed: one stream,
+        so that a subclass's additions do not move its siblings' draws."""
+        draws = np.random.default_rng(self.seed).integers(2**31, size=3)
+        return {"reweighting": int(draws[0]), "augmentation": int(draws[1]), "representation": int(draws[2])}
 
     def _target_pairs(self) -> tuple[list[tuple[th.Tensor, th.Tensor]], list[tuple[th.Tensor, th.Tensor]]]:
         """(online, target) parameters of the critic's encoder and of its heads, for the soft updates."""
@@ -240,10 +247,11 @@ class EncoderSAC(SAC):
             # + views of the observations for the critic (the first also the actor's), of the next ones for its target
             observations = self.augment(replay_data.observations)
             next_observations = self.augment(replay_data.next_observations)
-            # + per-sample weights of the critic and actor losses (SGFD), None = unweighted
-            critic_weights, actor_weights = self._batch_weights(replay_data, observations[0], batch_size, update_index)
             # + the actor and the entropy coefficient learn every `actor_update_interval` steps
             update_actor = update_index % self.actor_update_interval == 0
+            # + per-sample weights of the critic and actor losses (SGFD), None = unweighted
+            weights = self._batch_weights(replay_data, observations[0], batch_size, update_index, update_actor)
+            critic_weights, actor_weights = weights
 
             # We need to sample because `log_std` may have changed between two gradient steps
             if self.use_sde:
@@ -372,7 +380,7 @@ class EncoderSAC(SAC):
         ]
 
     def _batch_weights(
-        self, replay_data: Any, observations: th.Tensor, batch_size: int, update_index: int
+        self, replay_data: Any, observations: th.Tensor, batch_size: int, update_index: int, update_actor: bool
     ) -> tuple[th.Tensor | None, th.Tensor | None]:
         """Per-sample weights (n, 1) of the critic and actor losses; None: unweighted (SAC). SGFD_SAC overrides it.
 
@@ -380,6 +388,7 @@ class EncoderSAC(SAC):
         :param observations: the first observation view (what the critic and actor train on)
         :param batch_size: the batch size
         :param update_index: index of this gradient step over the run
+        :param update_actor: whether the actor learns at this step (its weights are used only then)
         """
         return None, None
 

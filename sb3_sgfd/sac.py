@@ -6,7 +6,6 @@ import warnings
 from collections.abc import Iterator
 from typing import Any
 
-import numpy as np
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.noise import ActionNoise
@@ -230,19 +229,24 @@ class SGFD_SAC(EncoderSAC):
         # The RFF draw of update k is seeded from (rff_seed, k): reproducible, and the seed is all that
         # a checkpoint needs to continue the same sequence.
         if self.rff_seed is None:
-            # The first draw of the seed's stream (EncoderSAC's augmentation and objective take the next two).
-            self.rff_seed = int(np.random.default_rng(self.seed).integers(2**31, size=3)[0])
+            self.rff_seed = self._derived_seeds()["reweighting"]
         self._rff_generator = th.Generator(device=self.device)
         if self.reweight_memory is not None and self.weight_memory is None:
             self.weight_memory = WeightMemory(self.reweight_memory)
 
     def _batch_weights(
-        self, replay_data: DomainReplayBufferSamples, observations: th.Tensor, batch_size: int, update_index: int
+        self,
+        replay_data: DomainReplayBufferSamples,
+        observations: th.Tensor,
+        batch_size: int,
+        update_index: int,
+        update_actor: bool,
     ) -> tuple[th.Tensor | None, th.Tensor | None]:
         """
         Algorithm 1, lines 6-17: train the domain classifier while it is below the accuracy threshold,
         then learn weights that decorrelate the batch's features. Returns the (n, 1) weights, mean 1, of the
-        critic and of the actor (None where that loss is not reweighted, or before the classifier is ready).
+        critic and of the actor (None where that loss is not reweighted, or before the classifier is ready;
+        weights for the actor alone are not computed on the steps it does not learn).
         """
         if self.num_timesteps < self.classifier_start or self.single_domain:
             return None, None
@@ -263,9 +267,8 @@ class SGFD_SAC(EncoderSAC):
             accuracy = classifier_accuracy(self.classifier, z, domains)
         self.classifier_ready = self.classifier_ready or accuracy >= self.accuracy_threshold
         self.record("sgfd/classifier_accuracy", accuracy)
-        actor_step = update_index % self.actor_update_interval == 0
-        if not self.classifier_ready or not (self.reweight_critic or (self.reweight_actor and actor_step)):
-            return None, None  # (weights only for the actor: none on the steps it skips)
+        if not self.classifier_ready or not (self.reweight_critic or (self.reweight_actor and update_actor)):
+            return None, None
 
         self._rff_generator.manual_seed(self.rff_seed + update_index)
         weights, loss_before, loss_after = self.sample_weights(z, self._rff_generator, record=True)
