@@ -178,8 +178,8 @@ def print_components(model: SGFD_SAC, batch_size: int, device: th.device, repeat
         "encode (no grad)": lambda: model.encode(batch.observations),
         "classifier accuracy": lambda: classifier_accuracy(model.classifier, z, batch.domains),
         "saliency p(Z_i)": lambda: feature_probabilities(model.classifier, z),
-        f"weight solver ({model.reweight_iters} iterations, d = {z.shape[1]})": lambda: model.sample_weights(
-            z, generator
+        f"weights: saliency + solver ({model.reweight_iters} iterations, d = {z.shape[1]})": lambda: (
+            model.sample_weights(z, generator)
         ),
     }
     print("| SGFD part, alone | ms |\n|---|---|")

@@ -40,15 +40,12 @@ def returns_text(report: dict[str, Any]) -> str:
     return ", ".join(f"{split} {value:.1f}" for split, value in returns.items())
 
 
-def progress_line(name: str, report: dict[str, Any] | None, status: str = "") -> str:
+def progress_line(name: str, report: dict[str, Any]) -> str:
     """One run's line: steps done of total, steps/s, ETA, the latest evaluation returns.
 
     :param name: the run, e.g. ``sgfd_sac MT-walker-walk seed 0``
-    :param report: its latest report (steps, total, steps_per_second, returns), or None before the first
-    :param status: overrides the progress part (``waiting``, ``finished in 4m05s``, ``FAILED``)
+    :param report: its latest report (steps, total, steps_per_second, returns)
     """
-    if status or report is None:
-        return f"{name:<44} {status or 'waiting'}"
     steps, total, rate = report["steps"], report["total"], report.get("steps_per_second", 0.0)
     eta = duration((total - steps) / rate) if rate > 0 and steps < total else "-"
     line = f"{name:<44} {steps:>8}/{total:<8} {100 * steps / max(total, 1):>3.0f}%  {rate:>5.0f} steps/s  ETA {eta:>6}"

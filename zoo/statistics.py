@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import csv
 import io
-import warnings
 from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
@@ -85,9 +84,7 @@ def interval_estimates(*args: Any, seed: int, **kwargs: Any) -> tuple[dict[str, 
     state = np.random.get_state()
     np.random.seed(seed)
     try:
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
-            return rly.get_interval_estimates(*args, **kwargs)
+        return rly.get_interval_estimates(*args, **kwargs)
     finally:
         np.random.set_state(state)
 
