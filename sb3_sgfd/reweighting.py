@@ -69,6 +69,10 @@ def random_fourier_features(z: Tensor, n_features: int = 5, generator: torch.Gen
     _check_batch(z, "z")
     if isinstance(n_features, bool) or not isinstance(n_features, int) or n_features < 1:
         raise ValueError(f"n_features must be an int >= 1, got {n_features!r}")
+    return _fourier_features(z, n_features, generator)
+
+
+def _fourier_features(z: Tensor, n_features: int, generator: torch.Generator | None) -> Tensor:
     d = z.shape[1]
     # Sample where the generator lives (a CPU generator cannot fill a CUDA tensor), then move.
     device = generator.device if generator is not None else z.device
@@ -92,8 +96,9 @@ def _covariance(u: Tensor, weights: Tensor, covariance: str) -> Tensor:
 
 def _pair_weights(feature_probs: Tensor, m: int) -> Tensor:
     """(d*m, d*m) weight of each covariance entry: p_i p_j inside the (m x m) block of a pair i < j, else 0."""
+    d = len(feature_probs)
     pairs = torch.triu(torch.outer(feature_probs, feature_probs), diagonal=1)
-    return pairs.repeat_interleave(m, dim=0).repeat_interleave(m, dim=1)
+    return pairs[:, None, :, None].expand(d, m, d, m).reshape(d * m, d * m)
 
 
 def _decorrelation_loss(features: Tensor, weights: Tensor, pair_weights: Tensor, covariance: str) -> Tensor:
@@ -306,7 +311,7 @@ def learn_sample_weights(
         z = feature_std * (z - z.mean(dim=0)) / z.std(dim=0).clamp_min(1e-8)
     remembered = memory is not None and memory.features is not None and memory.features.shape == z.shape
     every_z = torch.cat([z, memory.features.to(z)]) if remembered else z  # type: ignore[union-attr]
-    features = random_fourier_features(every_z, n_rff, generator) if use_rff else every_z.unsqueeze(-1)
+    features = _fourier_features(every_z, n_rff, generator) if use_rff else every_z.unsqueeze(-1)
     m = features.shape[2]
     features = features.reshape(len(every_z), d * m)
     probs = torch.full((d,), 1.0 / d) if feature_probs is None else feature_probs.detach()
@@ -330,9 +335,13 @@ def learn_sample_weights(
         a = distribution(theta)
         # d/da of loss + ess_penalty * (n sum(a^2) - 1); the penalty counts this batch only.
         grad_a = _scaled_loss_gradient(features, a, scaled_pairs, covariance)
-        own = a if fixed_logits is None else torch.softmax(theta, dim=0)
         # Through the softmax: a * (g - a . g) for each softmax (the memory's logits are constants).
-        grad = (a * (grad_a - a @ grad_a))[:n] + penalty * own * (own - own @ own)
+        if fixed_logits is None:  # one softmax for both terms: n sum(a^2) has gradient 2 n a
+            grad_a = torch.add(grad_a, a, alpha=penalty)
+            grad = a * (grad_a - a @ grad_a)
+        else:
+            own = torch.softmax(theta, dim=0)
+            grad = (a * (grad_a - a @ grad_a))[:n] + penalty * own * (own - own @ own)
         grad = torch.add(grad, theta, alpha=weight_decay)
         velocity = grad if step == 0 else torch.add(grad, velocity, alpha=momentum)
         theta = torch.add(theta, velocity, alpha=-lr)

@@ -15,7 +15,13 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_sgfd.buffers import DomainReplayBuffer, DomainReplayBufferSamples
 from sb3_sgfd.encoder_sac import EncoderSAC, check_positive_int
 from sb3_sgfd.reweighting import WeightMemory, learn_sample_weights
-from sb3_sgfd.saliency import DomainClassifier, classifier_accuracy, feature_probabilities, train_classifier
+from sb3_sgfd.saliency import (
+    DomainClassifier,
+    classifier_accuracy,
+    feature_probabilities,
+    scored_feature_probabilities,
+    train_classifier,
+)
 
 _SINGLE_DOMAIN_WARNING = (
     "SGFD_SAC sees a single domain, so there is nothing to decorrelate; it trains as plain SAC. Give it "
@@ -260,18 +266,26 @@ class SGFD_SAC(EncoderSAC):
 
         z = self.encode(observations)
         domains = self._checked_domains(replay_data.domains)
-        if self.classifier_iters > 0 and update_index % self.classifier_interval == 0:
+        weights_wanted = self.reweight_critic or (self.reweight_actor and update_actor)
+        feature_probs, accuracy = None, None
+        if self.classifier_ready and weights_wanted and self.use_saliency:
+            # One classifier pass scores the batch and gives p(Z_i) (before this step's classifier update, if any).
+            feature_probs, accuracy = scored_feature_probabilities(
+                self.classifier, z, domains, temperature=self.saliency_temperature, smoothing=self.saliency_smoothing
+            )
+        classifier_round = self.classifier_iters > 0 and update_index % self.classifier_interval == 0
+        if classifier_round and (accuracy is None or accuracy < self.accuracy_threshold):
             batches = self._classifier_batches(z, domains, batch_size)
             accuracy, _ = train_classifier(self.classifier, self.classifier_optimizer, batches, self.accuracy_threshold)
-        else:
+        elif accuracy is None:
             accuracy = classifier_accuracy(self.classifier, z, domains)
         self.classifier_ready = self.classifier_ready or accuracy >= self.accuracy_threshold
         self.record("sgfd/classifier_accuracy", accuracy)
-        if not self.classifier_ready or not (self.reweight_critic or (self.reweight_actor and update_actor)):
+        if not self.classifier_ready or not weights_wanted:
             return None, None
 
         self._rff_generator.manual_seed(self.rff_seed + update_index)
-        weights, loss_before, loss_after = self.sample_weights(z, self._rff_generator, record=True)
+        weights, loss_before, loss_after = self.sample_weights(z, self._rff_generator, True, feature_probs)
         # Kish's effective sample size over n, as a tensor: figures stay on the device until train() logs them.
         self.record("sgfd/weight_ess", weights.sum().square() / weights.square().sum() / len(weights))
         self.record("sgfd/weight_min", weights.min())
@@ -282,7 +296,11 @@ class SGFD_SAC(EncoderSAC):
         return (weights if self.reweight_critic else None), (weights if self.reweight_actor else None)
 
     def sample_weights(
-        self, z: th.Tensor, generator: th.Generator | None = None, record: bool = False
+        self,
+        z: th.Tensor,
+        generator: th.Generator | None = None,
+        record: bool = False,
+        feature_probs: th.Tensor | None = None,
     ) -> tuple[th.Tensor, float, float]:
         """
         Algorithm 1, lines 12-17 for features ``z``: the classifier's feature probabilities (uniform in the
@@ -291,15 +309,17 @@ class SGFD_SAC(EncoderSAC):
         :param z: (n, d) encoder features
         :param generator: seeds the random Fourier features
         :param record: log the most salient feature (and update the memory of past batches, if any)
+        :param feature_probs: p(Z_i) if already computed for ``z``; None: from the classifier here
         :return: weights (n,) with mean 1, the decorrelation loss at uniform weights and at the weights
         """
-        feature_probs = None
-        if self.use_saliency:
+        if not self.use_saliency:
+            feature_probs = None
+        elif feature_probs is None:
             feature_probs = feature_probabilities(
                 self.classifier, z, temperature=self.saliency_temperature, smoothing=self.saliency_smoothing
             )
-            if record:
-                self.record("sgfd/top_saliency_feature", feature_probs.argmax())
+        if feature_probs is not None and record:
+            self.record("sgfd/top_saliency_feature", feature_probs.argmax())
         return learn_sample_weights(
             z,
             feature_probs,

@@ -69,14 +69,19 @@ class DomainClassifier(nn.Module):
         :param domains: the domain whose logit to differentiate per sample; None: the predicted one
         :return: (n, n_features), without grad
         """
+        return self.predictions_and_input_gradient(z, domains)[1]
+
+    def predictions_and_input_gradient(self, z: Tensor, domains: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """The predicted domains (n,) and ``input_gradient``, from one forward pass."""
         first, _, second, _, last = self.net
         with torch.no_grad():
             h1 = first(z).clamp_min(0)
             h2 = second(h1).clamp_min(0)
-            target = last(h2).argmax(dim=1) if domains is None else domains.to(z.device).long()
+            predicted = last(h2).argmax(dim=1)
+            target = predicted if domains is None else domains.to(z.device).long()
             g2 = last.weight[target] * (h2 > 0)
             g1 = (g2 @ second.weight) * (h1 > 0)
-            return g1 @ first.weight
+            return predicted, g1 @ first.weight
 
 
 def saliency_map(classifier: nn.Module, z: Tensor, domains: Tensor | None = None) -> Tensor:
@@ -151,13 +156,46 @@ def feature_probabilities(
     :param domains: optional true labels; the saliency is then taken on the true domain's logit
     :return: (d,) probabilities summing to 1, without grad
     """
+    _check_probability_settings(temperature, smoothing)
+    return _probabilities(saliency_map(classifier, z, domains), temperature, normalize, smoothing)
+
+
+def scored_feature_probabilities(
+    classifier: DomainClassifier,
+    z: Tensor,
+    domains: Tensor,
+    *,
+    temperature: float = 0.1,
+    normalize: bool = True,
+    smoothing: float = 0.3,
+) -> tuple[Tensor, float]:
+    """``feature_probabilities`` (on each sample's predicted domain) and ``classifier_accuracy`` on ``domains``,
+    from one pass of the classifier: all SGFD needs of it on a step that learns weights.
+
+    :param classifier: the domain classifier
+    :param z: features (n, d)
+    :param domains: true domain labels (n,), for the accuracy
+    :return: p(Z_i) (d,) without grad, and the fraction of samples whose domain is predicted right
+    """
+    _check_probability_settings(temperature, smoothing)
+    _check_features(z)
+    _check_domains(domains, z.shape[0])
+    predicted, gradient = classifier.predictions_and_input_gradient(z.detach())
+    accuracy = (predicted == domains.to(predicted.device)).float().mean().item()
+    return _probabilities(gradient.abs().mean(dim=0), temperature, normalize, smoothing), accuracy
+
+
+def _check_probability_settings(temperature: float, smoothing: float) -> None:
     if isinstance(temperature, bool) or not isinstance(temperature, (int, float)) or not temperature > 0:
         raise ValueError(f"temperature must be a number > 0, got {temperature!r}")
     if not math.isfinite(temperature):
         raise ValueError(f"temperature must be finite, got {temperature!r}")
     if isinstance(smoothing, bool) or not isinstance(smoothing, (int, float)) or not 0 <= smoothing <= 1:
         raise ValueError(f"smoothing must be a number in [0, 1], got {smoothing!r}")
-    m = saliency_map(classifier, z, domains)
+
+
+def _probabilities(m: Tensor, temperature: float, normalize: bool, smoothing: float) -> Tensor:
+    """p(Z_i) from the saliency M (d,), as ``feature_probabilities`` describes."""
     if not torch.isfinite(m).all():
         raise ValueError("the classifier's saliency is not finite; check the classifier for NaN weights")
     if normalize:
@@ -186,11 +224,11 @@ def train_classifier(
     for z, domains in batches:
         _check_features(z)
         _check_domains(domains, z.shape[0])
-        with torch.no_grad():
-            accuracy = (classifier(z).argmax(dim=1) == domains).float().mean().item()
+        logits = classifier(z)  # one forward pass scores the batch and, below the threshold, trains on it
+        accuracy = (logits.detach().argmax(dim=1) == domains).float().mean().item()
         if stop_accuracy is not None and accuracy >= stop_accuracy:
             break
-        loss = F.cross_entropy(classifier(z), domains)
+        loss = F.cross_entropy(logits, domains)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()

@@ -11,7 +11,13 @@ from torch import nn
 from torch.nn import functional as F
 
 from sb3_sgfd.reweighting import effective_sample_size, learn_sample_weights, weighted_pearson
-from sb3_sgfd.saliency import DomainClassifier, classifier_accuracy, feature_probabilities, saliency_map
+from sb3_sgfd.saliency import (
+    DomainClassifier,
+    classifier_accuracy,
+    feature_probabilities,
+    saliency_map,
+    scored_feature_probabilities,
+)
 
 N_TRAIN = 4096
 
@@ -202,3 +208,17 @@ def test_classifier_accuracy():
     assert classifier_accuracy(classifier, z, torch.tensor([0, 1, 0, 1])) == 0.5
     with pytest.raises(ValueError, match="domains"):
         classifier_accuracy(classifier, z, torch.tensor([0, 1]))
+
+
+def test_one_scored_pass_gives_the_probabilities_and_the_accuracy_of_two():
+    classifier, batch = trained_classifier(d=10, n_tied=4, seed=0)
+    # labels that are partly wrong, so that the accuracy is neither 0 nor 1
+    domains = torch.where(torch.arange(128) % 3 == 0, (batch.domains + 1) % 4, batch.domains)
+    probs, accuracy = scored_feature_probabilities(classifier, batch.z, domains, temperature=0.2, smoothing=0.1)
+    torch.testing.assert_close(probs, feature_probabilities(classifier, batch.z, temperature=0.2, smoothing=0.1))
+    assert accuracy == classifier_accuracy(classifier, batch.z, domains)
+    assert 0.5 < accuracy < 0.75
+    with pytest.raises(ValueError, match="smoothing"):
+        scored_feature_probabilities(classifier, batch.z, domains, smoothing=2.0)
+    with pytest.raises(ValueError, match="domains"):
+        scored_feature_probabilities(classifier, batch.z, domains[:5])

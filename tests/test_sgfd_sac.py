@@ -51,7 +51,7 @@ class ZeroWeights(SGFD_SAC):
         super()._setup_model()
         self.classifier_ready = True
 
-    def sample_weights(self, z, generator=None, record=False):
+    def sample_weights(self, z, generator=None, record=False, feature_probs=None):
         return th.zeros(len(z)), 1.0, 0.0
 
 
@@ -83,7 +83,7 @@ class CountedWeights(ZeroWeights):
 
     calls = 0
 
-    def sample_weights(self, z, generator=None, record=False):
+    def sample_weights(self, z, generator=None, record=False, feature_probs=None):
         self.calls += 1
         return th.ones(len(z)), 1.0, 1.0
 
