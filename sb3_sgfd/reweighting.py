@@ -259,7 +259,9 @@ def learn_sample_weights(
       p and the RFF. The paper's lr 1e-2 leaves the weights uniform (0.2% less correlation).
     - ``ess_penalty``: n / ESS - 1 = mean(w^2) - 1, the official code's sum-of-squares penalty on the
       softmax weights. Without it 10 steps reach ESS 0.28 n (min 0.09 n); 0.35 keeps every seed above
-      0.5 n. lr 5 with momentum 0.9 was the best of lr 5, 10, 15 at that penalty.
+      0.5 n. lr 5 with momentum 0.9 was the best of lr 5, 10, 15 at that penalty. Fewer, longer steps (4 at
+      lr 17) match it on these batches but collapse on real MT states (the bench's state tables: ESS
+      0.008 n in the worst MT-cheetah-run batch, where the default keeps 0.62 n).
     - ``feature_std``: features are standardised over the batch and rescaled to this std before the RFF,
       so omega ~ N(0, 1) meets the same scale on raw states as on tanh encoder features, whose spread of
       ~0.5 is what the paper's omega ~ N(0, 1) was used on. ``None`` (the paper: z as is) matches the

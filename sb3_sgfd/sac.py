@@ -253,6 +253,10 @@ class SGFD_SAC(EncoderSAC):
         then learn weights that decorrelate the batch's features. Returns the (n, 1) weights, mean 1, of the
         critic and of the actor (None where that loss is not reweighted, or before the classifier is ready;
         weights for the actor alone are not computed on the steps it does not learn).
+
+        Once the classifier is ready, one pass of it scores the batch and gives the saliency p(Z_i); if the
+        score is below the threshold the classifier then takes its step, and the weights use the p(Z_i) of
+        that pass (Algorithm 1 would take p after the step: one Adam step apart, for one classifier pass less).
         """
         if self.num_timesteps < self.classifier_start or self.single_domain:
             return None, None
@@ -269,7 +273,6 @@ class SGFD_SAC(EncoderSAC):
         weights_wanted = self.reweight_critic or (self.reweight_actor and update_actor)
         feature_probs, accuracy = None, None
         if self.classifier_ready and weights_wanted and self.use_saliency:
-            # One classifier pass scores the batch and gives p(Z_i) (before this step's classifier update, if any).
             feature_probs, accuracy = scored_feature_probabilities(
                 self.classifier, z, domains, temperature=self.saliency_temperature, smoothing=self.saliency_smoothing
             )
