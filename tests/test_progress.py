@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import io
 
+import numpy as np
+
 import sgfd_envs
 from sb3_sgfd import EncoderSAC
 from zoo.callbacks import MultiSplitEvalCallback, ProgressCallback
@@ -81,3 +83,23 @@ def test_on_a_terminal_the_block_redraws_in_place_and_its_final_state_stays():
     # after the live block, its final state once, as plain lines
     assert text.rstrip().endswith("run a 2/2\nrun b 2/2")
     assert "--- sweep progress" not in text
+
+
+def test_a_restarted_run_replaces_the_evaluations_its_interrupted_attempt_made_later(tmp_path):
+    # An attempt that was stopped at 90 steps without a checkpoint: the run starts again from step 0.
+    np.savez(
+        tmp_path / "evaluations_extrapolation.npz",
+        timesteps=np.array([30, 60, 90]),
+        results=np.zeros((3, 1)),
+        ep_lengths=np.full((3, 1), 1000),
+    )
+    env = sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", obs_type="state")
+    model = EncoderSAC("MlpPolicy", env, learning_starts=50, batch_size=16, policy_kwargs=dict(net_arch=[16]))
+    evaluation_env = sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", split="extrapolation", obs_type="state")
+    evaluation = MultiSplitEvalCallback(
+        {"extrapolation": evaluation_env}, eval_freq=15, n_eval_episodes=1, log_path=tmp_path, verbose=0
+    )
+    model.learn(60, callback=evaluation)  # 4 sub-envs: evaluations at 60 steps only
+    with np.load(tmp_path / "evaluations_extrapolation.npz") as data:
+        assert data["timesteps"].tolist() == [60]
+        assert data["results"].shape == (1, 1) and data["results"][0, 0] != 0

@@ -28,7 +28,8 @@ class MultiSplitEvalCallback(BaseCallback):
     :param eval_envs: Split name -> VecEnv with one sub-env per domain of that split
     :param eval_freq: Evaluate every this many calls (env steps divided by the number of train envs)
     :param n_eval_episodes: Episodes per split, spread over its domains
-    :param log_path: Folder of the ``evaluations_<split>.npz`` files; existing files are continued
+    :param log_path: Folder of the ``evaluations_<split>.npz`` files; existing files are continued from the
+        step training starts at
     :param deterministic: Use the deterministic policy
     """
 
@@ -53,6 +54,14 @@ class MultiSplitEvalCallback(BaseCallback):
 
     def _file(self, split: str) -> Path | None:
         return None if self.log_path is None else self.log_path / f"evaluations_{split}.npz"
+
+    def _on_training_start(self) -> None:
+        # A run restarted where an attempt stopped (from its checkpoint, or from step 0 without one) keeps
+        # the evaluations up to that point only: the attempt's later ones are redone, not duplicated.
+        for history in self.history.values():
+            kept = sum(step <= self.num_timesteps for step in history["timesteps"])
+            for values in history.values():
+                del values[kept:]
 
     def _on_step(self) -> bool:
         if self.n_calls % self.eval_freq == 0:
