@@ -24,7 +24,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import gymnasium as gym
-import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -44,7 +43,7 @@ from sb3_sgfd.saliency import (
     saliency_map,
     train_classifier,
 )
-from sgfd_analysis.correlation import collect_states, state_names
+from sgfd_analysis.correlation import collect_states, standardised_sample, state_names
 from sgfd_analysis.correlation import train_domain_classifier as correlation_classifier
 
 N_BATCH, N_TRAIN, N_DOMAINS = 128, 8192, 4  # the memory rows use 40 of the training batches
@@ -227,9 +226,7 @@ def state_table(env_id: str, steps_per_domain: int = 1000) -> None:
     with gym.make(env_id, obs_type="state") as env:
         n_state = len(state_names(env, env_id))
     sample = collect_states(env_id, steps_per_domain=steps_per_domain, n_state_features=n_state)
-    spread = sample.features.std(axis=0)
-    z_all = torch.as_tensor((sample.features - sample.features.mean(axis=0)) / np.where(spread > 0, spread, 1.0))
-    z_all, domains = z_all.float(), torch.as_tensor(sample.domains)
+    z_all, domains = standardised_sample(sample)
     generator = torch.Generator().manual_seed(0)
     classifier, _ = correlation_classifier(z_all, domains, int(domains.max()) + 1, N_BATCH, generator)
     others = [column for column in range(z_all.shape[1]) if column != sample.changed]

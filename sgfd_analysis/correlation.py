@@ -259,6 +259,19 @@ def train_domain_classifier(
     return classifier, steps
 
 
+def standardised_sample(sample: StateSample) -> tuple[torch.Tensor, torch.Tensor]:
+    """The sample's features standardised over the whole sample (float32, constant features left at 0) and
+    its domain labels: what the domain classifier and the weights of :func:`correlation_study` see.
+
+    :param sample: states from :func:`collect_states`
+    """
+    spread = sample.features.std(axis=0)
+    if spread[sample.changed] == 0:
+        raise ZooError(f"the changed feature {sample.names[sample.changed]!r} has the same value in every domain")
+    standardised = (sample.features - sample.features.mean(axis=0)) / np.where(spread > 0, spread, 1.0)
+    return torch.as_tensor(standardised, dtype=torch.float32), torch.as_tensor(sample.domains)
+
+
 def correlation_study(sample: StateSample, batch_size: int = DEFAULT_BATCH_SIZE, seed: int = 0) -> StudyResult:
     """Mean |Pearson correlation| under raw, global and SGFD weights, over random batches of the sample.
 
@@ -274,12 +287,7 @@ def correlation_study(sample: StateSample, batch_size: int = DEFAULT_BATCH_SIZE,
     n, d = sample.features.shape
     if not 2 <= batch_size <= n:
         raise ZooError(f"--batch-size must be in 2..{n} (the number of states), got {batch_size}")
-    spread = sample.features.std(axis=0)
-    if spread[sample.changed] == 0:
-        raise ZooError(f"the changed feature {sample.names[sample.changed]!r} has the same value in every domain")
-    standardised = (sample.features - sample.features.mean(axis=0)) / np.where(spread > 0, spread, 1.0)
-    z_all = torch.as_tensor(standardised, dtype=torch.float32)
-    domains = torch.as_tensor(sample.domains)
+    z_all, domains = standardised_sample(sample)
     n_domains = int(domains.max()) + 1
 
     generator = torch.Generator().manual_seed(seed)
