@@ -179,8 +179,9 @@ class WeightMemory:
         self.updates = int(state["updates"])  # type: ignore[arg-type]
 
 
-def _scaled_loss_gradient(features: Tensor, a: Tensor, doubled_pairs: Tensor, covariance: str) -> Tensor:
-    """dL/da for the flattened features (n, D) at the distribution a, given P + P^T (times any scale).
+def _scaled_loss_gradient(features: Tensor, a: Tensor, doubled_pairs: Tensor, covariance: str) -> tuple[Tensor, Tensor]:
+    """dL/da for the flattened features (n, D) at the distribution a, given P + P^T (times any scale), and the
+    covariance C it was taken at (so that the solver's first step also gives it the loss at uniform weights).
 
     With S = (P + P^T) / 2 and C the covariance, L = sum S * C^2 and dL/dC = G = (P + P^T) * C;
 
@@ -193,13 +194,13 @@ def _scaled_loss_gradient(features: Tensor, a: Tensor, doubled_pairs: Tensor, co
     """
     if covariance == "weighted":
         centred = features - a @ features
-        g = doubled_pairs * (centred.T @ (a.unsqueeze(1) * centred))
-        return ((centred @ g) * centred).sum(dim=1)
+        cov = centred.T @ (a.unsqueeze(1) * centred)
+        return ((centred @ (doubled_pairs * cov)) * centred).sum(dim=1), cov
     n = features.shape[0]
     products = n * a.unsqueeze(1) * features
     centred = products - products.mean(dim=0)
-    g = doubled_pairs * (centred.T @ centred / (n - 1))
-    return 2 * n / (n - 1) * ((centred @ g) * features).sum(dim=1)
+    cov = centred.T @ centred / (n - 1)
+    return 2 * n / (n - 1) * ((centred @ (doubled_pairs * cov)) * features).sum(dim=1), cov
 
 
 def loss_gradient(
@@ -219,7 +220,7 @@ def loss_gradient(
     _check_probs(feature_probs, d)
     probs = (torch.full((d,), 1.0 / d) if feature_probs is None else feature_probs).to(rff)
     pair_weights = _pair_weights(probs, m)
-    return _scaled_loss_gradient(rff.reshape(n, d * m), a, pair_weights + pair_weights.T, covariance)
+    return _scaled_loss_gradient(rff.reshape(n, d * m), a, pair_weights + pair_weights.T, covariance)[0]
 
 
 def learn_sample_weights(
@@ -319,24 +320,30 @@ def learn_sample_weights(
     probs = torch.full((d,), 1.0 / d) if feature_probs is None else feature_probs.detach()
 
     fixed_logits = memory.logits.to(z) if remembered else None  # type: ignore[union-attr]
-    n_all = len(features)
 
     def distribution(theta: Tensor) -> Tensor:
         return torch.softmax(theta if fixed_logits is None else torch.cat([theta, fixed_logits]), dim=0)
 
     pair_weights = _pair_weights(probs.to(z), m)
+    doubled_pairs = pair_weights + pair_weights.T
     theta = z.new_zeros(n)
-    loss_start = _decorrelation_loss(features, n_all * distribution(theta), pair_weights, covariance)
+    a = distribution(theta)
+    # The first step's gradient, at the starting weights, comes with the covariance there and so the loss.
+    grad_a, cov = _scaled_loss_gradient(features, a, doubled_pairs, covariance)
+    loss_start = (pair_weights * cov.square()).sum()
     # The loss divided by its starting value, and the factor 2 of dL/dC, folded into the pair weights once.
     # A loss of 0 (nothing to decorrelate) leaves only the penalty, whose gradient at uniform weights is
     # zero: theta stays 0 without a data-dependent branch (no host-device synchronisation in the loop).
-    scaled_pairs = (pair_weights + pair_weights.T) * torch.where(loss_start > 0, 1 / loss_start, 0.0)
+    scale = torch.where(loss_start > 0, 1 / loss_start, 0.0)
+    scaled_pairs = doubled_pairs * scale
+    grad_a = grad_a * scale
     penalty = 2 * ess_penalty * n
     velocity = torch.zeros_like(theta)
     for step in range(iters):
-        a = distribution(theta)
+        if step > 0:
+            a = distribution(theta)
+            grad_a = _scaled_loss_gradient(features, a, scaled_pairs, covariance)[0]
         # d/da of loss + ess_penalty * (n sum(a^2) - 1); the penalty counts this batch only.
-        grad_a = _scaled_loss_gradient(features, a, scaled_pairs, covariance)
         # Through the softmax: a * (g - a . g) for each softmax (the memory's logits are constants).
         if fixed_logits is None:  # one softmax for both terms: n sum(a^2) has gradient 2 n a
             grad_a = torch.add(grad_a, a, alpha=penalty)
