@@ -17,7 +17,8 @@ SGFD is timed in three phases: ``steady`` (weights on, the classifier above its 
 on and the classifier training: whenever a batch's accuracy dips below the threshold, which in the quick job
 was most of a run). Both algorithms update the actor every step, so the ratio is SGFD's own cost. Each
 timed round is ``--round-steps`` gradient steps of every model in turn (SAC, SGFD steady, ...), so all see
-the same machine load; the script prints the median over rounds of the time per step, and the ratio to SAC.
+the same machine load; the script prints the median over rounds of the time per step, and the median and
+quartiles over rounds of the ratio to SAC within each round.
 
 Runs on CUDA when it is available (``--device``), and prints the device.
 
@@ -154,19 +155,27 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> None
 
     shape = models["SAC"].observation_space.shape
     print(f"\n## {name}: obs {shape}, batch {args.batch_size}, {args.rounds} rounds of {steps} steps\n")
-    base = statistics.median(times["SAC"])
-    print(f"| {'update':<16} | {'ms per step':>11} | {'vs SAC':>6} |")
-    print(f"|{'-' * 18}|{'-' * 13}|{'-' * 8}|")
+    print(f"| {'update':<16} | {'ms per step':>11} | {'vs SAC':>6} | {'per-round quartiles':>19} |")
+    print(f"|{'-' * 18}|{'-' * 13}|{'-' * 8}|{'-' * 21}|")
     for key, values in times.items():
-        median = statistics.median(values)
-        print(f"| {key:<16} | {1e3 * median:>11.2f} | {median / base:>5.2f}x |")
+        low, mid, high = round_ratio_quartiles(times, key, "SAC")
+        print(f"| {key:<16} | {1e3 * statistics.median(values):>11.2f} | {mid:>5.2f}x | {low:>8.2f} - {high:.2f}x |")
     if name == "agents":
-        ratio = statistics.median(times["SGFD on AMBS"]) / statistics.median(times["AMBS"])
+        ratio = round_ratio_quartiles(times, "SGFD on AMBS", "AMBS")[1]
         print(f"SGFD on AMBS / AMBS: {ratio:.2f}x (what the reweighting adds to the paper's agent)")
     else:
-        ratios = ", ".join(f"{phase} {statistics.median(times[f'SGFD {phase}']) / base:.2f}x" for phase in PHASES)
+        medians = {phase: round_ratio_quartiles(times, f"SGFD {phase}", "SAC")[1] for phase in PHASES}
+        ratios = ", ".join(f"{phase} {ratio:.2f}x" for phase, ratio in medians.items())
         print(f"SGFD / SAC ({name}): {ratios} (goal <= 1.2x)")
         print_components(steady, args.batch_size, device)
+
+
+def round_ratio_quartiles(times: dict[str, list[float]], key: str, base: str) -> tuple[float, float, float]:
+    """Quartiles over rounds of the time of ``key`` over that of ``base`` in the same round: the machine's
+    speed drifts between rounds (other tenants, clocks), and a ratio within one round cancels most of it."""
+    ratios = [value / reference for value, reference in zip(times[key], times[base], strict=True)]
+    low, mid, high = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else (ratios[0],) * 3
+    return low, mid, high
 
 
 def print_components(model: SGFD_SAC, batch_size: int, device: th.device, repeats: int = 50) -> None:
