@@ -184,7 +184,6 @@ def print_components(model: SGFD_SAC, batch_size: int, device: th.device, repeat
     z = model.encode(batch.observations)
     generator = th.Generator(device=device).manual_seed(0)
     parts = {
-        "encode (no grad)": lambda: model.encode(batch.observations),
         "classifier accuracy": lambda: classifier_accuracy(model.classifier, z, batch.domains),
         "saliency p(Z_i)": lambda: feature_probabilities(model.classifier, z),
         f"weights: saliency + solver ({model.reweight_iters} iterations, d = {z.shape[1]})": lambda: (

@@ -249,9 +249,6 @@ class EncoderSAC(SAC):
             next_observations = self.augment(replay_data.next_observations)
             # + the actor and the entropy coefficient learn every `actor_update_interval` steps
             update_actor = update_index % self.actor_update_interval == 0
-            # + per-sample weights of the critic and actor losses (SGFD), None = unweighted
-            weights = self._batch_weights(replay_data, observations[0], batch_size, update_index, update_actor)
-            critic_weights, actor_weights = weights
 
             # We need to sample because `log_std` may have changed between two gradient steps
             if self.use_sde:
@@ -291,8 +288,12 @@ class EncoderSAC(SAC):
                 ) / len(next_observations)
 
             # Get current Q-values estimates for each critic network
-            # using action from the replay buffer
-            current_q_values = [self.critic(obs, replay_data.actions) for obs in observations]  # + per view
+            # using action from the replay buffer (+ per view, each with the encoder features it came from)
+            critic_outputs = [self._critic_and_features(obs, replay_data.actions) for obs in observations]
+            current_q_values = [q_values for q_values, _ in critic_outputs]
+            # + per-sample weights of the critic and actor losses (SGFD) from the first view's features; None = SAC
+            z = critic_outputs[0][1].detach()
+            critic_weights, actor_weights = self._batch_weights(replay_data, z, batch_size, update_index, update_actor)
 
             # Compute critic loss  (+ mean over views, weighted per sample)
             critic_loss = sum(
@@ -379,13 +380,26 @@ class EncoderSAC(SAC):
             for _ in range(self.augmentation_views)
         ]
 
+    def _critic_and_features(
+        self, observations: th.Tensor, actions: th.Tensor
+    ) -> tuple[tuple[th.Tensor, ...], th.Tensor]:
+        """``self.critic(observations, actions)``, as SB3's ContinuousCritic computes it (its encoder learning
+        through it), and the encoder features it computed: the weights reuse them instead of encoding the
+        batch a second time (on pixels, a tenth of a step).
+        """
+        with th.set_grad_enabled(not self.critic.share_features_extractor):
+            features = self.critic.extract_features(observations, self.critic.features_extractor)
+        q_input = th.cat([features, actions], dim=1)
+        return tuple(q_net(q_input) for q_net in self.critic.q_networks), features
+
     def _batch_weights(
-        self, replay_data: Any, observations: th.Tensor, batch_size: int, update_index: int, update_actor: bool
+        self, replay_data: Any, z: th.Tensor, batch_size: int, update_index: int, update_actor: bool
     ) -> tuple[th.Tensor | None, th.Tensor | None]:
         """Per-sample weights (n, 1) of the critic and actor losses; None: unweighted (SAC). SGFD_SAC overrides it.
 
         :param replay_data: the replay samples
-        :param observations: the first observation view (what the critic and actor train on)
+        :param z: the critic's encoder features of the first observation view (what the critic and actor train
+            on), detached
         :param batch_size: the batch size
         :param update_index: index of this gradient step over the run
         :param update_actor: whether the actor learns at this step (its weights are used only then)

@@ -244,7 +244,7 @@ class SGFD_SAC(EncoderSAC):
     def _batch_weights(
         self,
         replay_data: DomainReplayBufferSamples,
-        observations: th.Tensor,
+        z: th.Tensor,
         batch_size: int,
         update_index: int,
         update_actor: bool,
@@ -269,7 +269,6 @@ class SGFD_SAC(EncoderSAC):
                 self.single_domain = True
                 return None, None
 
-        z = self.encode(observations)
         domains = self._checked_domains(replay_data.domains)
         weights_wanted = self.reweight_critic or (self.reweight_actor and update_actor)
         feature_probs, accuracy = None, None

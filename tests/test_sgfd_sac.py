@@ -98,6 +98,34 @@ def test_weights_for_the_actor_alone_are_computed_only_on_the_steps_it_learns(re
     assert model.calls == math.ceil(expected * model._n_updates)
 
 
+class EncoderChecked(SGFD_SAC):
+    """Records, at each weight computation, whether z is the batch's encoding by the critic's current encoder."""
+
+    def _setup_model(self):
+        super()._setup_model()
+        self.classifier_ready = True
+        self.matches, self.batches = [], []
+        sample = self.replay_buffer.sample
+        self.replay_buffer.sample = lambda *args, **kwargs: (
+            self.batches.append(sample(*args, **kwargs)) or self.batches[-1]
+        )
+
+    def sample_weights(self, z, generator=None, record=False, feature_probs=None):
+        self.matches.append(th.equal(z, super().encode(self.batches[-1].observations)))
+        return super().sample_weights(z, generator, record, feature_probs)
+
+    def encode(self, observations):
+        raise AssertionError("the step encoded a batch again instead of reusing the critic's features")
+
+
+def test_the_weights_reuse_the_critics_features_of_the_batch():
+    # A learned encoder (MlpEncoder), so that its features are not the observations themselves.
+    model = EncoderChecked("EncoderMlpPolicy", state_env(), classifier_start=0, **TINY)
+    model.learn(200)
+    assert len(model.matches) == model._n_updates > 0
+    assert all(model.matches)
+
+
 def test_learns_on_the_training_domains_and_its_weights_leave_one():
     model = reweighting_model()
     model.learn(600)
