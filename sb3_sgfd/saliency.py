@@ -181,7 +181,7 @@ def scored_feature_probabilities(
     _check_features(z)
     _check_domains(domains, z.shape[0])
     predicted, gradient = classifier.predictions_and_input_gradient(z.detach())
-    accuracy = (predicted == domains.to(predicted.device)).float().mean().item()
+    accuracy = _accuracy(predicted, domains)
     return _probabilities(gradient.abs().mean(dim=0), temperature, normalize, smoothing), accuracy
 
 
@@ -225,7 +225,7 @@ def train_classifier(
         _check_features(z)
         _check_domains(domains, z.shape[0])
         logits = classifier(z)  # one forward pass scores the batch and, below the threshold, trains on it
-        accuracy = (logits.detach().argmax(dim=1) == domains).float().mean().item()
+        accuracy = _accuracy(logits.detach().argmax(dim=1), domains)
         if stop_accuracy is not None and accuracy >= stop_accuracy:
             break
         loss = F.cross_entropy(logits, domains)
@@ -247,4 +247,9 @@ def classifier_accuracy(classifier: nn.Module, z: Tensor, domains: Tensor) -> fl
     _check_domains(domains, z.shape[0])
     with torch.no_grad():
         predicted = classifier(z).argmax(dim=1)
+    return _accuracy(predicted, domains)
+
+
+def _accuracy(predicted: Tensor, domains: Tensor) -> float:
+    """Fraction of the predicted domains (n,) that are the true ones (n,)."""
     return (predicted == domains.to(predicted.device)).float().mean().item()
