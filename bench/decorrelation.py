@@ -146,6 +146,8 @@ def decorrelation_table(cases: list[Case]) -> None:
         ("literal covariance, lr 0.1", saliency, {"covariance": "literal", "lr": 0.1}),
         ("literal covariance, lr 0.1, 50 iters", saliency, {"covariance": "literal", "lr": 0.1, "iters": 50}),
         ("weighted covariance, 50 iters", saliency, {"iters": 50}),
+        ("max_step 1 (a trust region)", saliency, {"max_step": 1.0}),
+        ("5 iters, lr 10, max_step 1", saliency, {"iters": 5, "lr": 10.0, "max_step": 1.0}),
         ("paper lr 1e-2", saliency, {"lr": 1e-2}),
         ("lr 1e-2, ess_penalty 0", saliency, {"lr": 1e-2, "ess_penalty": 0.0}),
         ("ess_penalty 0", saliency, {"ess_penalty": 0.0}),
@@ -210,11 +212,15 @@ def saliency_table(cases: list[Case], d: int) -> None:
     print_table(header, rows)
 
 
-# The solver's default next to fewer, longer steps: one matches the default on the synthetic batches above.
+# The solver's default next to fewer, longer steps (one matches the default on the synthetic batches above),
+# with and without a trust region on the logits (max_step).
 STATE_SETTINGS: list[tuple[str, dict]] = [
     ("default (10 iterations, lr 5)", {}),
     ("4 iterations, lr 17, ess_penalty 0.42", {"iters": 4, "lr": 17.0, "ess_penalty": 0.42}),
     ("5 iterations, lr 8", {"iters": 5, "lr": 8.0}),
+    ("default, max_step 1", {"max_step": 1.0}),
+    ("5 iterations, lr 10, max_step 1", {"iters": 5, "lr": 10.0, "max_step": 1.0}),
+    ("6 iterations, lr 8, max_step 1", {"iters": 6, "lr": 8.0, "max_step": 1.0}),
 ]
 
 

@@ -51,6 +51,15 @@ def _check_probs(feature_probs: Tensor | None, d: int) -> None:
         raise ValueError("feature_probs must be finite, non-negative and sum to 1")
 
 
+def check_max_step(max_step: float | None, name: str = "max_step") -> None:
+    """Refuse a trust-region size (``learn_sample_weights``' ``max_step``) that is not None or a finite number
+    > 0, naming the argument ``name``."""
+    if max_step is None:
+        return
+    if isinstance(max_step, bool) or not isinstance(max_step, (int, float)) or not 0 < max_step < math.inf:
+        raise ValueError(f"{name} must be None or a finite number > 0, got {max_step!r}")
+
+
 def _check_covariance(covariance: str) -> None:
     if covariance not in COVARIANCES:
         raise ValueError(f"covariance must be one of {COVARIANCES}, got {covariance!r}")
@@ -237,6 +246,7 @@ def learn_sample_weights(
     ess_penalty: float = 0.35,
     feature_std: float | None = 0.5,
     memory: WeightMemory | None = None,
+    max_step: float | None = None,
     generator: torch.Generator | None = None,
     return_losses: bool = False,
 ) -> Tensor | tuple[Tensor, float, float]:
@@ -270,6 +280,11 @@ def learn_sample_weights(
       variance (1.0) gives higher-frequency RFFs and removed less of it (33%).
     - ``memory`` (off by default; the official code's, see :class:`WeightMemory`): the loss covers the
       current batch and the memory's features under its stored logits, and the memory is then updated.
+    - ``max_step`` (off by default): a trust region, each SGD step scaled down so that no logit moves by
+      more than ``max_step``. At 1.0 with the default 10 steps it leaves every mean figure of the bench as
+      it is and lifts the worst real-state batch's ESS (MT-finger-spin) from 0.33 n to 0.59 n. It also stops
+      the collapse of fewer, longer steps, but 5 steps at lr 10 still remove less of the real states'
+      correlation than the default (MT-finger-spin 44% against 53%), so the default stays at 10 steps.
 
     A batch with nothing to decorrelate (loss 0 at uniform weights, e.g. d = 1) gets uniform weights.
 
@@ -285,6 +300,7 @@ def learn_sample_weights(
     :param ess_penalty: weight of the n / ESS - 1 penalty (0 disables it)
     :param feature_std: standard deviation the features are rescaled to before the RFF; None = as is
     :param memory: past batches to decorrelate against, updated in place; None = this batch only
+    :param max_step: largest change of any logit in one step (a trust region); None = unbounded
     :param generator: RNG for the RFF draw; the global RNG is untouched when given
     :param return_losses: also return the loss at uniform weights and at the returned weights
     :return: weights (n,), non-negative, summing to n, without grad; with ``return_losses``
@@ -304,6 +320,7 @@ def learn_sample_weights(
             raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
     if feature_std is not None and (not isinstance(feature_std, (int, float)) or not feature_std > 0):
         raise ValueError(f"feature_std must be None or a number > 0, got {feature_std!r}")
+    check_max_step(max_step)
     if memory is not None and not isinstance(memory, WeightMemory):
         raise ValueError(f"memory must be None or a WeightMemory, got {type(memory).__name__}")
 
@@ -353,7 +370,11 @@ def learn_sample_weights(
             grad = (a * (grad_a - a @ grad_a))[:n] + penalty * own * (own - own @ own)
         grad = torch.add(grad, theta, alpha=weight_decay)
         velocity = grad if step == 0 else torch.add(grad, velocity, alpha=momentum)
-        theta = torch.add(theta, velocity, alpha=-lr)
+        if max_step is None:
+            theta = torch.add(theta, velocity, alpha=-lr)
+        else:  # scaled as a tensor, not by a Python branch on its size: no host-device synchronisation
+            change = lr * velocity
+            theta = theta - change * (max_step / change.abs().max()).clamp(max=1.0)
     weights = n * torch.softmax(theta, dim=0)
     if not torch.isfinite(weights).all():
         raise RuntimeError("learn_sample_weights produced non-finite weights; lower lr")

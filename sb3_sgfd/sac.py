@@ -14,7 +14,7 @@ from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_sgfd.buffers import DomainReplayBuffer, DomainReplayBufferSamples
 from sb3_sgfd.encoder_sac import EncoderSAC, check_positive_int
-from sb3_sgfd.reweighting import WeightMemory, learn_sample_weights
+from sb3_sgfd.reweighting import WeightMemory, check_max_step, learn_sample_weights
 from sb3_sgfd.saliency import (
     DomainClassifier,
     classifier_accuracy,
@@ -66,6 +66,8 @@ class SGFD_SAC(EncoderSAC):
     :param reweight_ess_penalty: Penalty on n / ESS - 1 that keeps the weights from collapsing on few samples
     :param reweight_memory: Momentum of a memory of past batches the solver also decorrelates against (the
         official code's 0.9, see :class:`sb3_sgfd.reweighting.WeightMemory`); None: this batch only
+    :param reweight_max_step: Largest change of any weight logit in one solver step, a trust region (see
+        :func:`sb3_sgfd.reweighting.learn_sample_weights`); None: unbounded, as the paper
     :param saliency_temperature: Temperature of the softmax over max-normalised saliency giving p(Z_i)
     :param saliency_smoothing: Weight of the uniform distribution mixed into p(Z_i) (see
         :func:`sb3_sgfd.saliency.feature_probabilities`)
@@ -126,6 +128,7 @@ class SGFD_SAC(EncoderSAC):
         reweight_weight_decay: float = 1e-4,
         reweight_ess_penalty: float = 0.35,
         reweight_memory: float | None = None,
+        reweight_max_step: float | None = None,
         saliency_temperature: float = 0.1,
         saliency_smoothing: float = 0.3,
         use_rff: bool = True,
@@ -151,6 +154,7 @@ class SGFD_SAC(EncoderSAC):
             )
         if reweight_memory is not None:
             WeightMemory(reweight_memory)  # checks it
+        check_max_step(reweight_max_step, "reweight_max_step")
         self.n_domains = n_domains
         self.classifier_start = classifier_start
         self.classifier_iters = classifier_iters
@@ -165,6 +169,7 @@ class SGFD_SAC(EncoderSAC):
         self.reweight_weight_decay = reweight_weight_decay
         self.reweight_ess_penalty = reweight_ess_penalty
         self.reweight_memory = reweight_memory
+        self.reweight_max_step = reweight_max_step
         self.saliency_temperature = saliency_temperature
         self.saliency_smoothing = saliency_smoothing
         self.use_rff = use_rff
@@ -334,6 +339,7 @@ class SGFD_SAC(EncoderSAC):
             ess_penalty=self.reweight_ess_penalty,
             use_rff=self.use_rff,
             memory=self.weight_memory if record else None,
+            max_step=self.reweight_max_step,
             generator=generator,
             return_losses=True,
         )

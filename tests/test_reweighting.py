@@ -279,12 +279,31 @@ def test_nothing_to_decorrelate_gives_uniform_weights():
         ({"ess_penalty": -1.0}, "ess_penalty"),
         ({"feature_std": 0.0}, "feature_std"),
         ({"covariance": "cov"}, "covariance"),
+        ({"max_step": 0.0}, "max_step"),
+        ({"max_step": float("inf")}, "max_step"),
+        ({"max_step": True}, "max_step"),
     ],
 )
 def test_solver_rejects_bad_input(kwargs, match):
     z = kwargs.pop("z", torch.randn(8, 4, generator=seeded(0)))
     with pytest.raises(ValueError, match=match):
         learn_sample_weights(z, **kwargs)
+
+
+def test_max_step_bounds_how_far_each_step_moves_the_logits():
+    batch = make_domain_batch(d=10, seed=0)
+
+    def largest_logit_step(**kwargs) -> float:
+        weights = learn_sample_weights(batch.z, top_probs(batch), generator=seeded(0), iters=1, lr=50.0, **kwargs)
+        return (weights.log() - weights.log().mean()).abs().max().item()
+
+    # One step from uniform weights, whose logits' changes sum to 0: log w - mean(log w) is that step.
+    assert largest_logit_step() > 1.0
+    assert largest_logit_step(max_step=0.25) == pytest.approx(0.25, abs=1e-4)
+    # A trust region the steps never reach leaves the default solver's weights as they are.
+    unbounded = learn_sample_weights(batch.z, top_probs(batch), generator=seeded(0))
+    bounded = learn_sample_weights(batch.z, top_probs(batch), generator=seeded(0), max_step=1e6)
+    torch.testing.assert_close(bounded, unbounded)
 
 
 # --- the closed-form gradient, and the solver against an autograd reference ---

@@ -175,6 +175,19 @@ def test_sample_weights_follow_the_saliency_settings():
     assert not th.allclose(weights(saliency_smoothing=0.0), uniform)
 
 
+def test_reweight_max_step_reaches_the_solver():
+    z = th.randn(64, 25, generator=th.Generator().manual_seed(1))
+    z[:, 1] = z[:, 0] + 0.1 * z[:, 1]  # something to decorrelate
+
+    def largest_logit_step(**kwargs) -> float:
+        model = reweighting_model(use_saliency=False, reweight_iters=1, reweight_lr=50.0, **kwargs)
+        weights = model.sample_weights(z, th.Generator().manual_seed(2))[0]
+        return (weights.log() - weights.log().mean()).abs().max().item()
+
+    assert largest_logit_step() > 1.0
+    assert largest_logit_step(reweight_max_step=0.25) == pytest.approx(0.25, abs=1e-4)
+
+
 def test_actor_is_updated_every_actor_update_interval_steps():
     model = reweighting_model(actor_update_interval=3, classifier_start=10**9)
     model.learn(400)
@@ -241,6 +254,7 @@ def test_non_finite_losses_stop_training_with_a_clear_message():
         (dict(classifier_iters=-1), "classifier_iters"),
         (dict(replay_buffer_class=ReplayBuffer), "replay_buffer_class"),
         (dict(n_domains=0), "n_domains"),
+        (dict(reweight_max_step=0.0), "reweight_max_step"),
     ],
 )
 def test_bad_arguments_are_refused_by_name(kwargs, match):
