@@ -67,7 +67,7 @@ class SGFD_SAC(EncoderSAC):
     :param reweight_memory: Momentum of a memory of past batches the solver also decorrelates against (the
         official code's 0.9, see :class:`sb3_sgfd.reweighting.WeightMemory`); None: this batch only
     :param reweight_max_step: Largest change of any weight logit in one solver step, a trust region (see
-        :func:`sb3_sgfd.reweighting.learn_sample_weights`); None: unbounded, as the paper
+        :func:`sb3_sgfd.reweighting.learn_sample_weights`); None: unbounded, as in the paper
     :param saliency_temperature: Temperature of the softmax over max-normalised saliency giving p(Z_i)
     :param saliency_smoothing: Weight of the uniform distribution mixed into p(Z_i) (see
         :func:`sb3_sgfd.saliency.feature_probabilities`)
