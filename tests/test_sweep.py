@@ -5,11 +5,13 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
-import json
 import shutil
 import socket
 import subprocess
 import sys
+import threading
+import time
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,7 +20,7 @@ import ray
 import yaml
 
 from zoo import cli, sweep
-from zoo.runs import CHECKPOINT_INDEX, find_runs
+from zoo.runs import Checkpoint, RunFolder, atomic_write, find_runs, mark_finished, read_index, write_index
 
 # ray is imported above, at collection: its log handler keeps the sys.stderr of its import, and one
 # imported inside a test (under capsys) would write to a closed stream in the tests after it.
@@ -29,17 +31,23 @@ NAME = "SGFD-walker-walk-v0"
 TINY = ["--quick", "-n", "600", "--eval-freq", "-1", "--save-freq", "300", "--verbose", "0"]
 
 
+def write_zip(path: str, data: str = "not a model") -> None:
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("data", data)
+
+
 def make_run(folder: Path, algo: str, run_id: int, seed: int, finished: bool = False, checkpoint: int = 0) -> Path:
-    """A run folder as rl-zoo3 leaves it: args and config, the final model if finished, a checkpoint index."""
+    """A run folder as the zoo leaves it: args and config; if finished, a final model (a zip whose step count
+    reached its total, as SB3 writes it) and the marker; a checkpoint (whole files, but not a loadable model)."""
     run = folder / algo / f"{NAME}_{run_id}"
     (run / NAME).mkdir(parents=True)
     (run / NAME / "args.yml").write_text(yaml.safe_dump({"seed": seed}))
     (run / NAME / "config.yml").write_text(yaml.safe_dump({}))
-    if finished:
-        (run / f"{NAME}.zip").write_bytes(b"model")
     if checkpoint:
-        index = {"num_timesteps": checkpoint, "model": f"checkpoint_{checkpoint}_steps.zip"}
-        (run / CHECKPOINT_INDEX).write_text(json.dumps(index))
+        model = atomic_write(run / f"checkpoint_{checkpoint}_steps.zip", write_zip)
+        write_index(run, [Checkpoint(checkpoint, {"model": model})])
+    if finished:
+        mark_finished(run, atomic_write(run / f"{NAME}.zip", write_zip), max(checkpoint, 100))
     return run
 
 
@@ -51,9 +59,9 @@ def test_plan_skips_finished_runs_resumes_checkpoints_and_never_shares_a_folder(
     make_run(tmp_path, "sgfd_sac", 3, seed=9)  # another seed's run sits in seed 2's folder
     make_run(tmp_path, "sgfd_sac", 5, seed=7)  # ... and in seed 4's
 
-    jobs, done = sweep.plan(tmp_path, ["sgfd_sac", "sac"], [ENV], [0, 1, 2, 4])
+    jobs, done, problems = sweep.plan(tmp_path, ["sgfd_sac", "sac"], [ENV], [0, 1, 2, 4])
 
-    assert done == [("sgfd_sac", ENV, 0)]
+    assert done == [("sgfd_sac", ENV, 0)] and problems == []
     ids = {(job.algo, job.seed): job.run_id for job in jobs}
     assert ids == {
         ("sac", 0): 1,
@@ -71,6 +79,24 @@ def test_plan_skips_finished_runs_resumes_checkpoints_and_never_shares_a_folder(
     make_run(tmp_path, "sgfd_sac", 7, seed=2)
     again = {(job.algo, job.seed): job.run_id for job in sweep.plan(tmp_path, ["sgfd_sac"], [ENV], [2, 4])[0]}
     assert again == {("sgfd_sac", 2): 7, ("sgfd_sac", 4): 8}
+
+
+def test_plan_reports_a_broken_run_folder_and_goes_on(tmp_path: Path) -> None:
+    resumable = make_run(tmp_path, "sgfd_sac", 1, seed=0, checkpoint=300)
+    (resumable / "checkpoint.json").write_bytes(b"\0" * 40)  # zeroed: its checkpoint files are still there
+    unknown = make_run(tmp_path, "sgfd_sac", 2, seed=1)
+    (unknown / NAME / "args.yml").write_text("seed: [1")  # cut short
+    make_run(tmp_path, "sgfd_sac", 3, seed=2, finished=True)
+    (tmp_path / "sgfd_sac" / f"{NAME}_3" / "finished.json").write_text('{"num_timesteps": 1')
+
+    jobs, done, problems = sweep.plan(tmp_path, ["sgfd_sac"], [ENV], [0, 1, 2])
+
+    # Seed 0 resumes from the checkpoint its files make up; seed 1's folder has no known seed, so seed 1 starts
+    # there (it has nothing to lose); the marker of seed 2's run is unreadable, its final model is not whole.
+    assert {job.seed: job.run_id for job in jobs} == {0: 1, 1: 2, 2: 3} and done == []
+    assert len(problems) == 3 and all(" is unreadable (" in problem for problem in problems)
+    assert any(str(resumable / "checkpoint.json") in problem for problem in problems)
+    assert RunFolder(resumable).checkpoint.num_timesteps == 300
 
 
 def _free_port() -> int:
@@ -135,9 +161,9 @@ def test_a_configuration_that_does_not_fit_is_refused_in_one_line_before_any_run
 @pytest.fixture(scope="module")
 def first_sweep(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int, str]:
     """
-    Two tiny SGFD runs and two SAC runs that fail (each "crashed" earlier, leaving a checkpoint index whose
-    model is gone, so resuming it fails), on a local Ray instance the sweep starts itself; then the
-    evaluation of what finished.
+    Two tiny SGFD runs and two SAC runs that fail (each "crashed" earlier, leaving a checkpoint that is whole,
+    as written, but no model: resuming it fails, and the sweep must not start it again over it), on a local
+    Ray instance the sweep starts itself; then the evaluation of what finished.
     """
     folder = tmp_path_factory.mktemp("sweep") / "logs"
     for seed in (0, 1):
@@ -173,7 +199,9 @@ def test_sweep_trains_each_seed_into_its_own_folder_reports_failures_and_evaluat
         assert f"FAILED sac on {ENV} seed {seed}: " in summary and "checkpoint_300_steps" in summary
         assert f"(log: {log})" in summary
         assert "resuming from its checkpoint" in log.read_text() and "Traceback" in log.read_text()
-        assert not (folder / "sac" / f"{NAME}_{seed + 1}" / f"{NAME}.zip").exists()
+        assert "passes its checks but does not load" in summary
+        failed = RunFolder(folder / "sac" / f"{NAME}_{seed + 1}")
+        assert not failed.finished and failed.checkpoint is not None  # kept as it was, for a fixed code to resume
     # A line per run as it ends, and the final progress block counts them all.
     assert f"finished sgfd_sac on {ENV} seed 1" in out and f"FAILED sac on {ENV} seed 0" in out
     assert out.rsplit("--- sweep progress ", 1)[1].splitlines()[1] == "0 running, 0 waiting, 2 finished, 2 failed"
@@ -184,6 +212,37 @@ def test_sweep_trains_each_seed_into_its_own_folder_reports_failures_and_evaluat
         ("sgfd_sac", seed, split) for seed in ("0", "1") for split in ("train", "test")
     }
     assert "# train (mean ± std over 2 seeds)" in out
+
+
+@pytest.mark.slow
+def test_the_sweep_goes_on_when_its_progress_board_dies(tmp_path: Path) -> None:
+    killed = threading.Event()
+
+    def kill_the_board() -> None:
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline:
+            try:
+                # (a Ray call before the sweep's ray.init would start an instance of its own)
+                if ray.is_initialized():
+                    ray.kill(ray.get_actor(sweep.BOARD_NAME))
+                    killed.set()
+                    return
+            except ValueError:  # no board yet
+                pass
+            time.sleep(0.2)
+
+    killer = threading.Thread(target=kill_the_board, daemon=True)
+    killer.start()
+    argv = ["sweep", "--algos", "sac", "--envs", ENV, "--seeds", "0", "-f", str(tmp_path), "--num-cpus", "1"]
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = cli.main([*argv, "--no-evaluate", *TINY])
+    killer.join(timeout=5)
+    assert killed.is_set(), "the board was never seen"
+    assert code == 0, out.getvalue()
+    assert "sweep: the progress board stopped (ActorDiedError: " in out.getvalue(), out.getvalue()
+    assert f"[1/1] finished sac on {ENV} seed 0" in out.getvalue()
+    assert [run.path.name for run in find_runs(tmp_path)] == [f"{NAME}_1"]
 
 
 @pytest.fixture
@@ -223,7 +282,7 @@ def test_sweep_on_an_existing_cluster_skips_finished_runs_and_resumes_a_crashed_
     assert finished_model.stat().st_mtime_ns == finished_mtime
     # Continued, not restarted: same folder, a log from step 600 on, a checkpoint at 900, the final model.
     assert (crashed / "progress_from_600.csv").exists()
-    assert json.loads((crashed / CHECKPOINT_INDEX).read_text())["num_timesteps"] == 900
+    assert [checkpoint.num_timesteps for checkpoint in read_index(crashed)] == [900, 600]
     assert (crashed / f"{NAME}.zip").exists()
     assert sorted(path.name for path in (folder / "sgfd_sac").iterdir() if path.is_dir()) == [f"{NAME}_1", f"{NAME}_2"]
     log = (folder / "sgfd_sac" / f"{NAME}_1.log").read_text()

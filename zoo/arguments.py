@@ -3,13 +3,33 @@
 from __future__ import annotations
 
 import difflib
-from collections.abc import Sequence
+import shlex
+from collections.abc import Iterable, Sequence
 
 import sgfd_envs
 
 
 class ZooError(Exception):
-    """A mistake in what the user asked for; the CLI prints it as one line and exits non-zero."""
+    """Something the user must change (an argument, a file, free space); the CLI prints it as one line, after
+    ``sgfd-zoo COMMAND: <label>:``, and exits with ``exit_code``."""
+
+    label = "error"
+    exit_code = 2
+
+
+class TrainingStopped(ZooError):
+    """Training stopped before its end (Ctrl-C, a checkpoint that could not be written); the run is not finished
+    and the message says how to continue it.
+
+    :param message: what happened, what is kept, what to type
+    :param exit_code: 130 for an interrupt (the shell's convention), 1 otherwise
+    """
+
+    label = "stopped"
+
+    def __init__(self, message: str, exit_code: int = 1):
+        super().__init__(message)
+        self.exit_code = exit_code
 
 
 def check_env_id(env_id: str | None, flag: str = "--env") -> str:
@@ -57,6 +77,24 @@ def check_at_least(flag: str, value: float | None, low: float, strict: bool = Fa
         raise ZooError(f"{flag} must be {'>' if strict else '>='} {low:g}, got {value:g}")
 
 
+def check_keywords(where: str, given: Iterable[str], valid: Iterable[str]) -> None:
+    """A ZooError naming the keys of ``given`` that are not in ``valid``, a close match, and the valid ones.
+
+    :param where: what the keys are given to, e.g. ``policy_kwargs of sgfd_sac (SGFDPolicy)``
+    :param given: the keys given
+    :param valid: the keys it takes
+    """
+    valid = sorted(valid)
+    unknown = [key for key in given if key not in valid]
+    if not unknown:
+        return
+    hints = []
+    for key in unknown:
+        close = difflib.get_close_matches(key, valid, n=1)
+        hints.append(f"{key!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+    raise ZooError(f"unknown key(s) in {where}: {', '.join(hints)}; it takes {', '.join(valid) or 'none'}")
+
+
 def has_flag(argv: Sequence[str], flag: str) -> bool:
     """Whether ``argv`` sets ``flag`` (as ``flag value`` or ``flag=value``)."""
     return any(arg == flag or arg.startswith(f"{flag}=") for arg in argv)
@@ -71,3 +109,31 @@ def flag_value(argv: Sequence[str], flag: str) -> str | None:
         elif arg.startswith(f"{flag}="):
             value = arg.split("=", 1)[1]
     return value
+
+
+def without_flags(argv: Sequence[str], switches: Iterable[str] = (), options: Iterable[str] = ()) -> list[str]:
+    """``argv`` without the flags ``switches`` (no value) and ``options`` (with their value)."""
+    switches, options = set(switches), set(options)
+    kept, skip = [], False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg in switches or any(arg.startswith(f"{option}=") for option in options):
+            continue
+        elif arg in options:
+            skip = True
+        else:
+            kept.append(arg)
+    return kept
+
+
+def train_command(argv: Sequence[str], run_id: int | None, resume: bool) -> str:
+    """The ``sgfd-zoo train`` command line of ``argv`` that continues (``resume``) or restarts run ``run_id``.
+
+    :param argv: the flags the run was started with (after ``sgfd-zoo train``)
+    :param run_id: its folder's ``_<id>``; None: leave the choice to ``--resume`` (the newest run)
+    :param resume: continue from the checkpoint, else start again from step 0
+    """
+    flags = without_flags(argv, switches=["--resume"], options=["--run-id"])
+    flags += [] if run_id is None else ["--run-id", str(run_id)]
+    return shlex.join(["sgfd-zoo", "train", *flags, *(["--resume"] if resume else [])])

@@ -3,20 +3,38 @@ everything logged, and progress reports for the sweep's live view."""
 
 from __future__ import annotations
 
-import json
-import os
+import contextlib
+import functools
+import signal
+import sys
+import threading
 import time
-from collections.abc import Callable
+import zipfile
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import CSVOutputFormat
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from zoo.runs import CHECKPOINT_INDEX, read_checkpoint
+from zoo.runs import (
+    Checkpoint,
+    FileWriteError,
+    StoredFile,
+    UnreadableFile,
+    atomic_write,
+    checkpoint_file_name,
+    read_index,
+    remove_checkpoint_files,
+    scan_checkpoints,
+    write_failure,
+    write_index,
+)
 
 
 class MultiSplitEvalCallback(BaseCallback):
@@ -85,7 +103,8 @@ class MultiSplitEvalCallback(BaseCallback):
             history["ep_lengths"].append(lengths)
             if self.log_path is not None:
                 self.log_path.mkdir(parents=True, exist_ok=True)
-                np.savez(self._file(split), **{key: np.array(value) for key, value in history.items()})
+                arrays = {key: np.array(value) for key, value in history.items()}
+                atomic_write(self._file(split), lambda tmp, arrays=arrays: np.savez(tmp, **arrays))
             means[split] = float(np.mean(rewards))
             self.logger.record(f"eval/{split}/mean_reward", means[split])
             self.logger.record(f"eval/{split}/std_reward", float(np.std(rewards)))
@@ -108,9 +127,15 @@ class MultiSplitEvalCallback(BaseCallback):
 def _load_history(path: Path | None) -> dict[str, list]:
     history: dict[str, list] = {"timesteps": [], "results": [], "ep_lengths": []}
     if path is not None and path.exists():
-        with np.load(path) as data:
-            for key in history:
-                history[key] = list(data[key])
+        try:
+            with np.load(path) as data:
+                for key in history:
+                    history[key] = list(data[key])
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as error:
+            raise UnreadableFile(
+                f"{path} is unreadable ({type(error).__name__}: {error}): move it away to go on without the "
+                "evaluations it held"
+            ) from None
     return history
 
 
@@ -142,58 +167,202 @@ class CSVLogCallback(BaseCallback):
             self._output = None
 
 
+@dataclass(frozen=True)
+class CheckpointPart:
+    """
+    One file of a checkpoint: what it holds, how it is written and how a resumed model gets it back.
+
+    :param name: its key in ``checkpoint.json`` and in its file name (``checkpoint_<name>_<steps>_steps<suffix>``)
+    :param suffix: ``.pkl`` or ``.zip`` (the suffix decides how a file found without its index is checked)
+    :param save: writes the part of ``model`` to the path it is given
+    :param restore: loads it into the resumed ``model``; None for the model itself (loaded first, by the class)
+    :param applies: whether ``model`` has this part
+    """
+
+    name: str
+    suffix: str
+    save: Callable[[BaseAlgorithm, str], None]
+    restore: Callable[[BaseAlgorithm, str], None] | None = None
+    applies: Callable[[BaseAlgorithm], bool] = lambda model: True
+
+
+def _has_replay_buffer(model: BaseAlgorithm) -> bool:
+    return hasattr(model, "save_replay_buffer") and getattr(model, "replay_buffer", None) is not None
+
+
+def _restore_vec_normalize(model: BaseAlgorithm, path: str) -> None:
+    current = model.get_vec_normalize_env()
+    if current is None:
+        raise ValueError(f"{path} holds VecNormalize statistics, but the resumed run does not normalize")
+    saved = VecNormalize.load(path, current.venv)
+    current.obs_rms, current.ret_rms = saved.obs_rms, saved.ret_rms
+
+
+# What a checkpoint saves, in the order it is written. The model comes last: a checkpoint whose model file
+# exists is complete, which is how one is recognised without its index. A further part (an environment's
+# state, say) is one more entry before the model; resuming restores every part the checkpoint has.
+CHECKPOINT_PARTS: tuple[CheckpointPart, ...] = (
+    CheckpointPart(
+        "replay_buffer",
+        ".pkl",
+        save=lambda model, path: model.save_replay_buffer(path),
+        restore=lambda model, path: model.load_replay_buffer(path),
+        applies=_has_replay_buffer,
+    ),
+    CheckpointPart(
+        "vecnormalize",
+        ".pkl",
+        save=lambda model, path: model.get_vec_normalize_env().save(path),
+        restore=_restore_vec_normalize,
+        applies=lambda model: model.get_vec_normalize_env() is not None,
+    ),
+    CheckpointPart("model", ".zip", save=lambda model, path: model.save(path)),
+)
+
+
+class StopRequest:
+    """Set (by Ctrl-C) to ask training to stop at the next step, after a checkpoint."""
+
+    def __init__(self) -> None:
+        self.reason: str | None = None
+
+    def request(self, reason: str) -> None:
+        self.reason = reason
+
+    def __bool__(self) -> bool:
+        return self.reason is not None
+
+
+@contextlib.contextmanager
+def interrupts_deferred(stop: StopRequest) -> Iterator[None]:
+    """While the block runs, the first Ctrl-C (SIGINT) sets ``stop`` instead of raising KeyboardInterrupt, so
+    that training ends at a step boundary with a checkpoint; a second one raises at once. Only in the main
+    thread (the only one Python delivers signals to); elsewhere the block runs unchanged."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def first_interrupt(signum: int, frame: Any) -> None:
+        stop.request("Ctrl-C")
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    saved = signal.signal(signal.SIGINT, first_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, saved)
+
+
 class ResumableCheckpointCallback(BaseCallback):
     """
-    Every ``save_freq`` calls, save the model, its replay buffer and VecNormalize statistics, then
-    record them in ``checkpoint.json``. Files are written under temporary names and renamed, and the
-    index is replaced last, so a crash at any moment leaves the previous checkpoint usable. Only the
-    newest checkpoint is kept (a paper-scale replay buffer is several GB).
+    Every ``save_freq`` calls, and when ``stop`` is set (then training stops), save a checkpoint: the parts of
+    ``parts`` that the model has, each written whole (:func:`zoo.runs.atomic_write`: fsync'd, checked, renamed),
+    then ``checkpoint.json`` listing them with their sizes and sha256. The two newest checkpoints are kept:
+    before a new one is written the older is deleted, and the newer stays until the new one is complete, so a
+    crash, a kill or a full disk at any moment leaves the previous checkpoint usable (peak: two checkpoints
+    on disk; a paper-scale replay buffer is several GB).
 
-    :param save_freq: Save every this many calls (env steps divided by the number of train envs)
-    :param save_path: Folder of the checkpoint files
+    A checkpoint that cannot be written (disk full, or any OSError) is removed again, ``failure`` says why in
+    one line, and training stops; ``stopped`` is the step it stopped at. Files an interrupted save left behind
+    (a process killed while writing) are deleted when training starts again.
+
+    :param save_freq: Save every this many calls (env steps divided by the number of train envs); None: only
+        when stopped
+    :param save_path: Folder of the checkpoint files (the run folder)
+    :param stop: Set to stop training at the next step, after a checkpoint
+    :param parts: What a checkpoint holds, in the order written (the model last)
     """
 
-    def __init__(self, save_freq: int, save_path: str | Path, verbose: int = 0):
+    def __init__(
+        self,
+        save_freq: int | None,
+        save_path: str | Path,
+        stop: StopRequest | None = None,
+        parts: Sequence[CheckpointPart] = CHECKPOINT_PARTS,
+        verbose: int = 0,
+    ):
         super().__init__(verbose)
-        if save_freq < 1:
-            raise ValueError(f"save_freq must be >= 1, got {save_freq}")
+        if save_freq is not None and save_freq < 1:
+            raise ValueError(f"save_freq must be None or >= 1, got {save_freq}")
+        if not parts or parts[-1].name != "model":
+            raise ValueError(f"parts must end with the model (written last), got {[part.name for part in parts]}")
         self.save_freq = save_freq
         self.save_path = Path(save_path)
+        self.stop = stop if stop is not None else StopRequest()
+        self.parts = tuple(parts)
+        self.failure: str | None = None
+        self.stopped: int | None = None
+
+    def _on_training_start(self) -> None:
+        self.save_path.mkdir(parents=True, exist_ok=True)
+        try:
+            kept = read_index(self.save_path)
+        except UnreadableFile:
+            return  # its files may be all that is left of the checkpoints: they stay
+        removed = remove_checkpoint_files(self.save_path, kept)
+        if removed and self.verbose > 0:
+            print(f"Removed what interrupted saves left in {self.save_path}: {', '.join(removed)}")
 
     def _on_step(self) -> bool:
-        if self.n_calls % self.save_freq == 0:
-            self.save()
+        if self.stop:
+            newest = self.newest()
+            if newest is None or newest.num_timesteps != self.num_timesteps:
+                self.save()
+            self.stopped = self.num_timesteps
+            return False
+        if self.save_freq is not None and self.n_calls % self.save_freq == 0 and self.save() is None:
+            self.stopped = self.num_timesteps
+            return False
         return True
 
-    def save(self) -> dict[str, str | int]:
-        self.save_path.mkdir(parents=True, exist_ok=True)
-        steps = self.num_timesteps
-        entry: dict[str, str | int] = {"num_timesteps": steps, "model": f"checkpoint_{steps}_steps.zip"}
-        _atomic(self.save_path / entry["model"], lambda tmp: self.model.save(tmp))
-        if hasattr(self.model, "save_replay_buffer") and self.model.replay_buffer is not None:
-            entry["replay_buffer"] = f"checkpoint_replay_buffer_{steps}_steps.pkl"
-            _atomic(self.save_path / entry["replay_buffer"], lambda tmp: self.model.save_replay_buffer(tmp))
-        vec_normalize = self.model.get_vec_normalize_env()
-        if vec_normalize is not None:
-            entry["vecnormalize"] = f"checkpoint_vecnormalize_{steps}_steps.pkl"
-            _atomic(self.save_path / entry["vecnormalize"], vec_normalize.save)
-        previous = read_checkpoint(self.save_path)
-        index = self.save_path / CHECKPOINT_INDEX
-        _atomic(index, lambda tmp: Path(tmp).write_text(json.dumps(entry)))
-        if previous is not None:
-            for key in ("model", "replay_buffer", "vecnormalize"):
-                if key in previous and previous[key] != entry.get(key):
-                    (self.save_path / previous[key]).unlink(missing_ok=True)
+    def newest(self) -> Checkpoint | None:
+        try:
+            checkpoints = read_index(self.save_path)
+        except UnreadableFile:
+            return None
+        return checkpoints[0] if checkpoints else None
+
+    def save(self) -> Checkpoint | None:
+        """Write a checkpoint at the current step; None (and ``failure`` set) when it could not be written."""
+        folder, steps = self.save_path, self.num_timesteps
+        folder.mkdir(parents=True, exist_ok=True)
+        try:
+            listed = read_index(folder)
+        except UnreadableFile as error:
+            listed = scan_checkpoints(folder)
+            print(f"warning: {error}; the new index lists the newest checkpoint its files make up", file=sys.stderr)
+        previous = listed[:1]
+        written: dict[str, StoredFile] = {}
+        try:
+            # Room for the new checkpoint: the older one goes, the newer stays until the new one is complete.
+            if len(listed) > 1:
+                write_index(folder, previous)
+            remove_checkpoint_files(folder, previous)
+            for part in self.parts:
+                if part.applies(self.model):
+                    path = folder / checkpoint_file_name(part.name, steps, part.suffix)
+                    written[part.name] = atomic_write(path, functools.partial(part.save, self.model))
+            checkpoint = Checkpoint(steps, written)
+            write_index(folder, [checkpoint, *previous])
+        except FileWriteError as error:
+            remove_checkpoint_files(folder, previous)
+            # The new checkpoint is about the size of the previous one; without one, what was written is a bound.
+            error.bytes_written += sum(stored.size or 0 for stored in written.values())
+            kept = "no checkpoint"
+            if previous:
+                kept = f"the previous checkpoint ({previous[0].num_timesteps} steps) is intact"
+            self.failure = write_failure(f"the checkpoint at {steps} steps", folder, error, _size(previous), kept)
+            return None
+        except BaseException:
+            remove_checkpoint_files(folder, previous)
+            raise
         if self.verbose > 0:
-            print(f"Checkpoint at {steps} steps in {self.save_path}")
-        return entry
+            print(f"Checkpoint at {steps} steps in {folder}")
+        return checkpoint
 
 
-def _atomic(path: Path, write) -> None:
-    # SB3 appends ".zip" to a model path without one, so the temporary name keeps the suffix.
-    tmp = path.with_name(f".tmp-{path.name}")
-    write(str(tmp))
-    os.replace(tmp, path)
+def _size(checkpoints: list[Checkpoint]) -> int | None:
+    return checkpoints[0].size if checkpoints else None
 
 
 class ProgressCallback(BaseCallback):
@@ -243,4 +412,12 @@ class ProgressCallback(BaseCallback):
         report = {"steps": self.num_timesteps, "total": self.total_timesteps, "steps_per_second": rate, "done": done}
         if returns:
             report["returns"] = returns
-        self.reporter(report)
+        try:
+            self.reporter(report)
+        except Exception as error:  # the sweep's board is gone: its live view loses this run, the run goes on
+            print(f"warning: progress reports stopped ({type(error).__name__}: {error})", file=sys.stderr)
+            self.reporter = _ignore
+
+
+def _ignore(report: dict[str, Any]) -> None:
+    pass

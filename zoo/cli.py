@@ -69,8 +69,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return getattr(importlib.import_module(module), function)(rest) or 0
     except ZooError as error:
-        print(f"sgfd-zoo {command}: error: {error}", file=sys.stderr)
-        return 2
+        print(f"sgfd-zoo {command}: {error.label}: {error}", file=sys.stderr)
+        return error.exit_code
+    except KeyboardInterrupt:
+        # Training handles Ctrl-C itself (it stops at a checkpoint); this is Ctrl-C anywhere else.
+        print(f"sgfd-zoo {command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

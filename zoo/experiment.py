@@ -1,33 +1,62 @@
-"""rl-zoo3's ExperimentManager, taught to train on SGFD's multi-domain envs and to resume."""
+"""rl-zoo3's ExperimentManager, taught to train on SGFD's multi-domain envs, to stop at a checkpoint and to
+resume from one."""
 
 from __future__ import annotations
 
 import difflib
+import errno
 import inspect
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import optuna
+import rl_zoo3.exp_manager
 from gymnasium import spaces
 from rl_zoo3.exp_manager import ExperimentManager
 from rl_zoo3.hyperparams_opt import HYPERPARAMS_CONVERTER, HYPERPARAMS_SAMPLER, convert_offpolicy_params
 from rl_zoo3.utils import ALGOS, get_class_by_name
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import ProgressBarCallback
 from stable_baselines3.common.preprocessing import is_image_space, is_image_space_channels_first
 from stable_baselines3.common.torch_layers import FlattenExtractor, NatureCNN
-from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecNormalize, VecTransposeImage
+from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecTransposeImage
 
 import sgfd_envs
 from sb3_sgfd import SGFD_SAC
 from sb3_sgfd.policies import MlpEncoder, PixelEncoder
+from sb3_sgfd.representation import REPRESENTATIONS
 from sgfd_envs.backgrounds import overlay_bank
 from zoo.algos import SGFD_ALGOS
-from zoo.arguments import ZooError
-from zoo.callbacks import CSVLogCallback, MultiSplitEvalCallback, ProgressCallback, ResumableCheckpointCallback
-from zoo.runs import RunFolder, runs_by_id
+from zoo.arguments import TrainingStopped, ZooError, check_keywords, train_command
+from zoo.callbacks import (
+    CHECKPOINT_PARTS,
+    CSVLogCallback,
+    MultiSplitEvalCallback,
+    ProgressCallback,
+    ResumableCheckpointCallback,
+    StopRequest,
+    interrupts_deferred,
+)
+from zoo.runs import (
+    CHECKPOINT_INDEX,
+    KEPT_CHECKPOINTS,
+    Checkpoint,
+    FileWriteError,
+    NoUsableCheckpoint,
+    RunFolder,
+    UnreadableFile,
+    atomic_write,
+    describe_checkpoint,
+    mark_finished,
+    read_index,
+    remove_checkpoint_files,
+    runs_by_id,
+    write_failure,
+    write_index,
+)
 
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 # Keys rl-zoo3 consumes itself before the rest goes to the algorithm's constructor.
@@ -44,6 +73,12 @@ ZOO_KEYS = {
     "noise_type",
     "noise_std",
 }
+# Hyperparameters that hold keyword arguments; a string is a Python expression, as rl-zoo3 reads policy_kwargs.
+KWARGS_KEYS = ("policy_kwargs", "replay_buffer_kwargs", "representation_kwargs")
+# What SB3 passes a replay buffer itself, besides replay_buffer_kwargs.
+BUFFER_ARGUMENTS = {"buffer_size", "observation_space", "action_space", "device", "n_envs", "optimize_memory_usage"}
+# Errors of a write that a full disk (or quota, or file size limit) causes.
+NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
 
 def hyperparams_file(algo: str, quick: bool = False) -> Path:
@@ -101,11 +136,15 @@ class SGFDExperimentManager(ExperimentManager):
     - the training VecEnv has one sub-env per training domain (``n_envs`` defaults to their number);
     - evaluation envs get the same env kwargs as training (rl-zoo3 drops yaml ``env_kwargs`` there),
       and evaluation covers every split: training domains and the unseen ones;
-    - checkpoints (model + replay buffer) every ``save_freq`` steps, and ``resume=True`` continues the
-      newest run of this algo and env from its last checkpoint;
+    - checkpoints (model + replay buffer) every ``save_freq`` steps, each file written whole and checked
+      (:class:`~zoo.callbacks.ResumableCheckpointCallback`); ``resume=True`` continues the newest run of this
+      algo and env from its newest checkpoint that verifies, the one before when the newest does not;
+    - Ctrl-C stops training at a checkpoint and a full disk stops it cleanly: a :class:`TrainingStopped`
+      says how to continue, and the run is not finished; the final model is followed by ``finished.json``;
     - a progress bar by default when the output is a terminal, and progress reports to ``progress_reporter``;
-    - a policy that cannot read the observations is refused, naming the flags that fit, before anything is
-      built.
+    - a policy that cannot read the observations, and unknown keys in the kwargs hyperparameters (policy,
+      features extractor, representation, replay buffer), are refused in one line, naming what fits, before
+      anything is built.
 
     Takes rl-zoo3's arguments, plus:
 
@@ -114,7 +153,9 @@ class SGFDExperimentManager(ExperimentManager):
     :param progress: Show a progress bar; None: when stdout is a terminal
     :param run_id: Write to (and resume) the run folder ``<EnvName>_<run_id>``; None: rl-zoo3's newest id + 1
     :param progress_reporter: Called every few seconds with a dict of the run's progress (``sgfd-zoo sweep``)
-    :param check_only: Only read and check the configuration (``setup_experiment`` then builds nothing)
+    :param check_only: Only check the configuration: ``setup_experiment`` builds the model on the env with a
+        tiny replay buffer, writes nothing and returns no model
+    :param command: The ``sgfd-zoo train`` flags of this run, to print the command that continues it
     """
 
     def __init__(
@@ -126,6 +167,7 @@ class SGFDExperimentManager(ExperimentManager):
         run_id: int | None = None,
         progress_reporter: Callable[[dict[str, Any]], None] | None = None,
         check_only: bool = False,
+        command: Sequence[str] | None = None,
         **kwargs,
     ):
         algo = args[1] if len(args) > 1 else kwargs["algo"]
@@ -143,9 +185,20 @@ class SGFDExperimentManager(ExperimentManager):
         self.progress_reporter = progress_reporter
         self.check_only = check_only
         self.resume = resume
-        self.checkpoint: dict | None = None
+        self.command = None if command is None else list(command)
+        self.stop = StopRequest()
+        self.checkpoint: Checkpoint | None = None
+        self.checkpointer: ResumableCheckpointCallback | None = None
         if resume and not check_only:
             self._point_at_run_to_resume()
+
+    def train_command(self, resume: bool) -> str:
+        """The command that continues this run from its checkpoint (``resume``) or starts it again."""
+        run = RunFolder.parse(Path(self.save_path))
+        argv = self.command
+        if argv is None:
+            argv = ["--algo", self.algo, "--env", self.env_name.gym_id, "-f", self.log_folder, "--seed", str(self.seed)]
+        return train_command(argv, None if run is None else run.run_id, resume)
 
     # -- configuration ---------------------------------------------------------------------------
 
@@ -160,6 +213,9 @@ class SGFDExperimentManager(ExperimentManager):
 
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]):
         explicit_n_envs = "n_envs" in hyperparams
+        for key in KWARGS_KEYS:
+            if key in hyperparams:
+                hyperparams[key] = kwargs_value(key, hyperparams[key])
         # rl-zoo3 eval()s a string replay_buffer_class; a dotted path names a class to import instead.
         if isinstance(hyperparams.get("replay_buffer_class"), str) and "." in hyperparams["replay_buffer_class"]:
             hyperparams["replay_buffer_class"] = get_class_by_name(hyperparams["replay_buffer_class"])
@@ -170,6 +226,7 @@ class SGFDExperimentManager(ExperimentManager):
             self.n_envs = sgfd_envs.n_domains(self.env_name.gym_id, "train", **self.env_kwargs)
         check_algo_kwargs(self.algo, processed)
         check_policy_fits(self.algo, processed, observes_pixels(self.env_kwargs))
+        check_nested_kwargs(self.algo, processed)
         self._add_overlay_images(processed)
         return processed, env_wrapper, callbacks, vec_env_wrapper
 
@@ -207,12 +264,12 @@ class SGFDExperimentManager(ExperimentManager):
     def create_callbacks(self) -> None:
         if self.show_progress:
             self.callbacks.append(ProgressBarCallback())
-        log_name = (
-            "progress.csv" if self.checkpoint is None else f"progress_from_{self.checkpoint['num_timesteps']}.csv"
-        )
+        log_name = "progress.csv" if self.checkpoint is None else f"progress_from_{self.checkpoint.num_timesteps}.csv"
         self.callbacks.append(CSVLogCallback(Path(self.save_path) / log_name))
-        if self.save_freq > 0:
-            self.callbacks.append(ResumableCheckpointCallback(max(self.save_freq // self.n_envs, 1), self.save_path))
+        # Always there: with --save-freq <= 0 it still saves the checkpoint a Ctrl-C stops at.
+        save_freq = max(self.save_freq // self.n_envs, 1) if self.save_freq > 0 else None
+        self.checkpointer = ResumableCheckpointCallback(save_freq, self.save_path, self.stop, verbose=self.verbose)
+        self.callbacks.append(self.checkpointer)
         if self.eval_freq > 0 and not self.optimize_hyperparameters:
             splits = sgfd_envs.splits(self.env_name.gym_id)
             self.callbacks.append(
@@ -230,14 +287,14 @@ class SGFDExperimentManager(ExperimentManager):
             latest = None if evaluation is None else evaluation.latest_returns
             self.callbacks.append(ProgressCallback(self.progress_reporter, self.n_timesteps, latest))
 
-    # -- resuming --------------------------------------------------------------------------------
+    # -- setting up, resuming -------------------------------------------------------------------
 
     def _point_at_run_to_resume(self) -> None:
         if self.run_id is not None:
             runs = [RunFolder(Path(self.save_path))]
         else:
             runs = list(runs_by_id(Path(self.log_path).parent, self.algo, self.env_name.gym_id).values())
-        runs = [run for run in runs if run.checkpoint is not None]
+        runs = [run for run in runs if run.checkpoints()]
         if not runs:
             raise ZooError(
                 f"--resume: no checkpoint of {self.algo} on {self.env_name.gym_id} under {self.log_path} "
@@ -246,53 +303,209 @@ class SGFDExperimentManager(ExperimentManager):
         run = runs[-1]
         self.save_path = str(run.path)
         self.params_path = str(run.config_dir)
-        self.checkpoint = run.checkpoint
+        checkpoint, problems = run.usable_checkpoint()
+        try:
+            read_index(run.path)
+        except UnreadableFile as error:
+            problems = [str(error), *problems]
+        if checkpoint is None:
+            raise NoUsableCheckpoint(
+                f"--resume: no usable checkpoint in {run.path}: {'; '.join(problems)}; start the run again with: "
+                f"{self.train_command(resume=False)}"
+            )
+        if problems:
+            print(
+                f"warning: {'; '.join(problems)}: resuming from the checkpoint at {checkpoint.num_timesteps} steps",
+                file=sys.stderr,
+            )
+        self.checkpoint = checkpoint
 
     def setup_experiment(self):
         if self.check_only:
-            unprocessed, saved_hyperparams = self.read_hyperparameters()
-            self._preprocess_hyperparams(unprocessed)
-            return None, saved_hyperparams
-        if self.checkpoint is None:
+            return self._check_configuration()
+        if self.optimize_hyperparameters or self.continue_training:
             return super().setup_experiment()
-        # Same steps as rl-zoo3's setup, but the model and its replay buffer come from the checkpoint.
+        # rl-zoo3's steps in another order: the model (or the checkpoint) first, so that a configuration that
+        # does not build leaves no run folder behind.
         unprocessed, saved_hyperparams = self.read_hyperparameters()
         hyperparams, self.env_wrapper, self.callbacks, self.vec_env_wrapper = self._preprocess_hyperparams(unprocessed)
-        self.create_log_folder()
-        self.create_callbacks()
+        if self.checkpoint is None:
+            self._claim_run_folder()
         env = self.create_envs(self.n_envs)
         self._hyperparams = self._preprocess_action_noise(hyperparams, saved_hyperparams, env)
-        run = Path(self.save_path)
-        model = ALGOS[self.algo].load(
-            run / self.checkpoint["model"],
-            env=env,
-            tensorboard_log=self.tensorboard_log,
-            verbose=self.verbose,
-            device=self.device,
-        )
-        if "replay_buffer" in self.checkpoint:
-            model.load_replay_buffer(run / self.checkpoint["replay_buffer"])
-        if "vecnormalize" in self.checkpoint and isinstance(model.get_vec_normalize_env(), VecNormalize):
-            model.set_env(VecNormalize.load(str(run / self.checkpoint["vecnormalize"]), env))
-        print(f"Resuming {run} from {model.num_timesteps} steps")
+        model = self._build_model(env, self._hyperparams) if self.checkpoint is None else self._load_checkpoint(env)
+        self.create_log_folder()
+        self.create_callbacks()
         self._save_config(saved_hyperparams)
         return model, saved_hyperparams
 
+    def _check_configuration(self) -> tuple[None, dict[str, Any]]:
+        """The configuration read, checked and built into a model on the env with a tiny replay buffer: what
+        fails here fails once (the sweep checks every configuration before it starts any run)."""
+        unprocessed, saved_hyperparams = self.read_hyperparameters()
+        hyperparams = self._preprocess_hyperparams(unprocessed)[0]
+        env = self.create_envs(self.n_envs)
+        try:
+            hyperparams = self._preprocess_action_noise(hyperparams, saved_hyperparams, env)
+            model = self._build_model(env, {**hyperparams, "buffer_size": 64 * self.n_envs})
+            del model
+        finally:
+            env.close()
+        return None, saved_hyperparams
+
+    def _build_model(self, env: VecEnv, hyperparams: dict[str, Any]) -> BaseAlgorithm:
+        try:
+            return ALGOS[self.algo](
+                env=env,
+                tensorboard_log=self.tensorboard_log,
+                seed=self.seed,
+                verbose=self.verbose,
+                device=self.device,
+                **hyperparams,
+            )
+        except (TypeError, ValueError) as error:
+            env.close()
+            raise ZooError(
+                f"{self.algo} on {self.env_name.gym_id} cannot be built from this configuration: "
+                f"{type(error).__name__}: {_first_line(error)}"
+            ) from error
+
+    def _claim_run_folder(self) -> None:
+        """Refuse to start afresh over a finished run or a usable checkpoint; discard checkpoints that are
+        unusable (the run starts again from step 0 there, as the message of ``--resume`` says)."""
+        run = RunFolder.parse(Path(self.save_path))
+        if run is None or not run.path.exists():
+            return
+        if run.finished:
+            raise ZooError(f"--run-id {run.run_id}: {run.path} is a finished run; choose another --run-id")
+        if not run.checkpoints():
+            return
+        checkpoint, problems = run.usable_checkpoint()
+        if checkpoint is not None:
+            raise ZooError(
+                f"--run-id {run.run_id}: {run.path} has a checkpoint at {checkpoint.num_timesteps} steps; continue "
+                f"it with: {self.train_command(resume=True)} (or delete the folder to start it again)"
+            )
+        removed = remove_checkpoint_files(run.path, [])
+        (run.path / CHECKPOINT_INDEX).unlink(missing_ok=True)
+        print(
+            f"Starting {run.path} again from step 0: no checkpoint of it is usable ({'; '.join(problems)}); "
+            f"removed {', '.join([*removed, CHECKPOINT_INDEX])}",
+            file=sys.stderr,
+        )
+
+    def _load_checkpoint(self, env: VecEnv) -> BaseAlgorithm:
+        """The model of ``self.checkpoint`` with the parts it saved; the index then lists it (and what is older)
+        and nothing else: the unusable newer checkpoints and what interrupted saves left are deleted."""
+        run = RunFolder(Path(self.save_path))
+        checkpoint = self.checkpoint
+        assert checkpoint is not None
+        try:
+            model = ALGOS[self.algo].load(
+                run.path / checkpoint.files["model"].name,
+                env=env,
+                tensorboard_log=self.tensorboard_log,
+                verbose=self.verbose,
+                device=self.device,
+            )
+            for part in CHECKPOINT_PARTS:
+                if part.restore is not None and part.name in checkpoint.files:
+                    part.restore(model, str(run.path / checkpoint.files[part.name].name))
+        except Exception as error:
+            env.close()
+            raise ZooError(
+                f"--resume: {run.path / checkpoint.files['model'].name} (the checkpoint at {checkpoint.num_timesteps} "
+                f"steps) passes its checks but does not load ({type(error).__name__}: {_first_line(error)}); if "
+                "another version of the code wrote it, resume with that version, or delete the folder to start again"
+            ) from error
+        older = [c for c in run.checkpoints() if c.num_timesteps < checkpoint.num_timesteps]
+        kept = [describe_checkpoint(run.path, checkpoint), *older][:KEPT_CHECKPOINTS]
+        write_index(run.path, kept)
+        remove_checkpoint_files(run.path, kept)
+        print(f"Resuming {run.path} from {model.num_timesteps} steps")
+        return model
+
+    # -- training and its end ----------------------------------------------------------------------
+
     def learn(self, model: BaseAlgorithm) -> None:
-        if self.checkpoint is None:
-            return super().learn(model)
-        remaining = self.n_timesteps - model.num_timesteps
+        """Train to ``n_timesteps`` (the rest of them when resumed). Ctrl-C stops at a checkpoint, a full disk
+        stops cleanly; either raises :class:`TrainingStopped`, so that no final model is saved."""
+        remaining = self.n_timesteps - (model.num_timesteps if self.checkpoint is not None else 0)
         if remaining <= 0:
             print(f"Nothing to resume: the checkpoint already has {model.num_timesteps} of {self.n_timesteps} steps")
             return None
-        kwargs: dict[str, Any] = {"reset_num_timesteps": False}
+        kwargs: dict[str, Any] = {"reset_num_timesteps": self.checkpoint is None}
+        if self.log_interval > -1:
+            kwargs["log_interval"] = self.log_interval
+        elif self.log_interval < -1:
+            kwargs["log_interval"] = None
         if self.callbacks:
             kwargs["callback"] = self.callbacks
         try:
-            model.learn(remaining, **kwargs)
+            with interrupts_deferred(self.stop):
+                model.learn(remaining, **kwargs)
+        except KeyboardInterrupt:
+            raise TrainingStopped(
+                f"Ctrl-C twice: stopped at once at {model.num_timesteps} steps, {self._kept()}; the run is not "
+                f"finished; continue it with: {self.train_command(resume=True)}",
+                exit_code=130,
+            ) from None
+        except (FileWriteError, OSError) as error:
+            if not isinstance(error, FileWriteError) and error.errno not in NO_ROOM:
+                raise
+            if not isinstance(error, FileWriteError):
+                error = FileWriteError(Path(error.filename or self.save_path), error.strerror or str(error), error)
+            what = f"{error.path.name} (at {model.num_timesteps} steps)"
+            raise TrainingStopped(
+                f"{write_failure(what, error.path.parent, error, None, self._kept())}; free space, then continue "
+                f"with: {self.train_command(resume=True)}"
+            ) from None
         finally:
             if model.env is not None:
                 model.env.close()
+        assert self.checkpointer is not None
+        if self.checkpointer.failure is not None:
+            raise TrainingStopped(
+                f"{self.checkpointer.failure}; free space, then continue with: {self.train_command(resume=True)}"
+            )
+        if self.stop and model.num_timesteps < self.n_timesteps:
+            raise TrainingStopped(
+                f"{self.stop.reason} at {model.num_timesteps} steps: {self._kept()}; the run is not finished; "
+                f"continue it with: {self.train_command(resume=True)}",
+                exit_code=130,
+            )
+        return None
+
+    def _kept(self) -> str:
+        newest = self.checkpointer.newest() if self.checkpointer is not None else None
+        if newest is None:
+            return f"no checkpoint in {self.save_path}"
+        return f"its checkpoint at {newest.num_timesteps} steps is in {self.save_path}"
+
+    def save_trained_model(self, model: BaseAlgorithm) -> None:
+        """rl-zoo3's files of a trained agent, each written whole, the model last, then ``finished.json``."""
+        if self.optimize_hyperparameters:
+            return super().save_trained_model(model)
+        folder = Path(self.save_path)
+        print(f"Saving to {folder}")
+        newest = self.checkpointer.newest() if self.checkpointer is not None else None
+        # A Ctrl-C now waits for the end of the save: the run is then finished.
+        with interrupts_deferred(StopRequest()):
+            try:
+                if hasattr(model, "save_replay_buffer") and self.save_replay_buffer:
+                    atomic_write(folder / "replay_buffer.pkl", model.save_replay_buffer)
+                if self.normalize:
+                    vec_normalize = model.get_vec_normalize_env()
+                    assert vec_normalize is not None
+                    atomic_write(Path(self.params_path) / "vecnormalize.pkl", vec_normalize.save)
+                stored = atomic_write(folder / f"{self.env_name}.zip", model.save)
+                mark_finished(folder, stored, model.num_timesteps)
+            except FileWriteError as error:
+                size = None if newest is None else newest.files["model"].size
+                raise TrainingStopped(
+                    f"{write_failure('the final model', folder, error, size, self._kept())}; the run is not finished; "
+                    f"free space, then finish it with: {self.train_command(resume=True)}"
+                ) from None
         return None
 
 
@@ -336,9 +549,7 @@ def check_policy_fits(algo: str, hyperparams: dict[str, Any], pixels: bool) -> N
     :param pixels: whether the env gives images
     """
     policy = hyperparams.get("policy")
-    policy_class = ALGOS[algo].policy_aliases.get(policy) if isinstance(policy, str) else policy
-    if policy_class is None and isinstance(policy, str) and "." in policy:
-        policy_class = get_class_by_name(policy)
+    policy_class = policy_class_of(algo, policy)
     name = policy if isinstance(policy, str) else getattr(policy, "__name__", str(policy))
     kwargs = hyperparams.get("policy_kwargs") or {}
     extractor = kwargs.get("features_extractor_class") or default_extractor(policy_class)
@@ -361,6 +572,16 @@ def check_policy_fits(algo: str, hyperparams: dict[str, Any], pixels: bool) -> N
         raise ZooError(f"{algo} shifts images (augmentation_views), but the env gives state observations: {fixes}")
 
 
+def policy_class_of(algo: str, policy: str | type | None) -> type | None:
+    """The policy class a ``policy`` hyperparameter names: an alias of the algorithm, a dotted path, or a class."""
+    if not isinstance(policy, str):
+        return policy
+    policy_class = ALGOS[algo].policy_aliases.get(policy)
+    if policy_class is None and "." in policy:
+        policy_class = get_class_by_name(policy)
+    return policy_class
+
+
 def default_extractor(policy_class: type | None) -> type | None:
     """The features extractor a policy class uses when none is given; None when it follows the observations."""
     if policy_class is None:
@@ -369,6 +590,88 @@ def default_extractor(policy_class: type | None) -> type | None:
         return policy_class.default_features_extractor_class
     default = inspect.signature(policy_class.__init__).parameters.get("features_extractor_class")
     return default.default if default is not None and isinstance(default.default, type) else None
+
+
+def kwargs_value(key: str, value: Any) -> dict[str, Any] | None:
+    """A kwargs hyperparameter as a dict: a string is evaluated as rl-zoo3 evaluates ``policy_kwargs`` (with
+    the names its module sees: ``nn``, ``th``, ...); anything else but a dict or None is refused, by name.
+
+    :param key: the hyperparameter, e.g. ``representation_kwargs``
+    :param value: its value in the yaml or ``-params``
+    """
+    if isinstance(value, str):
+        try:
+            value = eval(value, dict(vars(rl_zoo3.exp_manager)))
+        except Exception as error:
+            reason = f"{type(error).__name__}: {error}"
+            raise ZooError(f"{key}: {value!r} is not a Python dict expression ({reason})") from None
+    if value is not None and not isinstance(value, dict):
+        raise ZooError(f"{key} must be a dict, or a string such as \"dict(key=value)\", got {value!r}")
+    return value
+
+
+def keyword_arguments(cls: type, filled: set[str] = frozenset(), follow_var_keyword: bool = True) -> set[str] | None:
+    """The keyword arguments a user may give ``cls`` (less those its caller ``filled`` itself), following
+    ``**kwargs`` up the base classes (SB3's policies hand theirs to their base); None when ``cls`` takes
+    ``**kwargs`` it does not hand up (``follow_var_keyword=False``), so that its keys cannot be known.
+
+    :param cls: a class
+    :param filled: arguments its caller passes itself
+    :param follow_var_keyword: follow ``**kwargs`` up the MRO
+    """
+    if not follow_var_keyword:
+        parameters = inspect.signature(cls.__init__).parameters
+        if any(p.kind == p.VAR_KEYWORD for p in parameters.values()):
+            return None
+    return constructor_arguments(cls) - filled - {"self"}
+
+
+def default_argument(cls: type, name: str) -> Any:
+    """The default of ``cls``'s constructor argument ``name``, from the first class of its MRO that has it."""
+    for base in cls.__mro__:
+        if "__init__" in vars(base):
+            parameter = inspect.signature(base.__init__).parameters.get(name)
+            if parameter is not None:
+                return parameter.default
+    return None
+
+
+def check_nested_kwargs(algo: str, hyperparams: dict[str, Any]) -> None:
+    """Refuse unknown keys inside ``policy_kwargs`` (and its ``features_extractor_kwargs``),
+    ``representation_kwargs`` and ``replay_buffer_kwargs``, naming each and the keys that class takes.
+
+    :param algo: algorithm key
+    :param hyperparams: the processed hyperparameters
+    """
+    algo_class = ALGOS[algo]
+    policy_class = policy_class_of(algo, hyperparams.get("policy"))
+    policy_kwargs = hyperparams.get("policy_kwargs") or {}
+    if policy_class is not None:
+        valid = keyword_arguments(policy_class, {"observation_space", "action_space", "lr_schedule"}) or set()
+        check_keywords(f"policy_kwargs of {algo} ({policy_class.__name__})", policy_kwargs, valid)
+    extractor = policy_kwargs.get("features_extractor_class") or default_extractor(policy_class)
+    if isinstance(extractor, type) and policy_kwargs.get("features_extractor_kwargs"):
+        valid = keyword_arguments(extractor, {"observation_space"}, follow_var_keyword=False)
+        if valid is not None:  # one that hands **kwargs on (AMBSEncoder to its trunk) is checked when built
+            where = f"features_extractor_kwargs of {algo} ({extractor.__name__})"
+            check_keywords(where, policy_kwargs["features_extractor_kwargs"], valid)
+    representation = hyperparams.get("representation", getattr(algo_class, "fixed_representation", None))
+    if hyperparams.get("representation_kwargs") and representation in REPRESENTATIONS:
+        representation_class = REPRESENTATIONS[representation]
+        valid = keyword_arguments(representation_class) or set()
+        where = f"representation_kwargs of {algo} ({representation!r}: {representation_class.__name__})"
+        check_keywords(where, hyperparams["representation_kwargs"], valid)
+    buffer_class = hyperparams.get("replay_buffer_class") or default_argument(algo_class, "replay_buffer_class")
+    buffer_class = buffer_class or ReplayBuffer
+    if hyperparams.get("replay_buffer_kwargs") and isinstance(buffer_class, type):
+        valid = keyword_arguments(buffer_class, BUFFER_ARGUMENTS) or set()
+        where = f"replay_buffer_kwargs of {algo} ({buffer_class.__name__})"
+        check_keywords(where, hyperparams["replay_buffer_kwargs"], valid)
+
+
+def _first_line(error: BaseException) -> str:
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    return lines[0] if lines else "(no message)"
 
 
 def check_algo_kwargs(algo: str, hyperparams: dict[str, Any]) -> None:

@@ -81,7 +81,7 @@ class LiveView:
         self.interval = interval
         self.terminal = self.stream.isatty()
         self._live: Any = None
-        self._last_print = 0.0
+        self._last_print: float | None = None  # the first block is printed at once
         self._lines: Sequence[str] = ()
 
     def __enter__(self) -> LiveView:
@@ -109,7 +109,7 @@ class LiveView:
             self._live.update(Text("\n".join(lines)), refresh=True)
             return
         now = time.monotonic()
-        if force or now - self._last_print >= self.interval:
+        if force or self._last_print is None or now - self._last_print >= self.interval:
             self._last_print = now
             stamp = time.strftime("%H:%M:%S")
             print(f"--- sweep progress {stamp}", *lines, sep="\n", file=self.stream, flush=True)

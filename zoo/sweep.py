@@ -5,7 +5,9 @@ Ray cluster (``--address``), then evaluate the finished runs and print the paper
 Each run is ``sgfd-zoo train`` in a fresh Ray worker process, writing the log layout ``train`` writes:
 LOGDIR/<algo>/<EnvName>_<run id>/, its output going to LOGDIR/<algo>/<EnvName>_<run id>.log. A run's id
 is its seed unless that folder already holds another seed's run. Running the same command again resumes
-the sweep: finished runs are skipped, and unfinished ones continue from their last checkpoint.
+the sweep: finished runs are skipped, and unfinished ones continue from their last checkpoint (one none of
+whose checkpoints verifies starts again from step 0, saying so in its log). A run folder with unreadable
+files is reported and planned around; if the progress board dies, the runs go on without live progress.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from zoo import evaluate, training
 from zoo.algos import SGFD_ALGOS
 from zoo.arguments import ZooError, checked_names, flag_value, has_flag
 from zoo.progress import LiveView, ProgressBoard, progress_block, returns_text
-from zoo.runs import RunFolder, find_runs, read_checkpoint, runs_by_id
+from zoo.runs import NoUsableCheckpoint, RunFolder, find_runs, runs_by_id
 
 # Train flags the sweep sets per run itself, and what to use instead.
 SWEEP_OWNED_FLAGS = {
@@ -43,6 +45,7 @@ SWEEP_OWNED_FLAGS = {
     "--optimize-hyperparameters": "sgfd-zoo optimize",
 }
 MAX_SEED = 2**32 - 1  # numpy's limit, which rl-zoo3 seeds with
+BOARD_NAME = "sgfd-zoo sweep progress"  # the progress board actor, in this sweep's Ray namespace
 
 
 @dataclass(frozen=True)
@@ -89,15 +92,19 @@ class Job:
 
 def plan(
     folder: Path, algos: Sequence[str], env_ids: Sequence[str], seeds: Sequence[int]
-) -> tuple[list[Job], list[tuple[str, str, int]]]:
+) -> tuple[list[Job], list[tuple[str, str, int]], list[str]]:
     """
-    The runs still to train (new or to resume), and the (algo, env, seed) already finished in ``folder``.
+    The runs still to train (new or to resume), the (algo, env, seed) already finished in ``folder``, and
+    one line per unreadable file of a run folder (such a folder is read as if that file were absent: a run
+    whose args are unreadable has no known seed, one whose checkpoint index is unreadable resumes from the
+    checkpoint files it has).
 
     :param folder: Log folder (absolute)
     :param algos: Algorithm keys
     :param env_ids: SGFD env ids
     :param seeds: Training seeds
     """
+    problems = [problem for run in find_runs(folder, algos, env_ids, finished=False) for problem in run.problems]
     finished = {(run.algo, run.env_id, run.seed) for run in find_runs(folder, algos, env_ids)}
     jobs, done = [], []
     assigned: dict[tuple[str, str], set[int]] = {}
@@ -112,7 +119,7 @@ def plan(
                 run_id = choose_run_id(folder, algo, env_id, seed, [*(s + 1 for s in seeds), *taken])
                 taken.add(run_id)
                 jobs.append(Job(algo, env_id, seed, run_id, folder))
-    return jobs, done
+    return jobs, done, problems
 
 
 def choose_run_id(folder: Path, algo: str, env_id: str, seed: int, reserved: Sequence[int]) -> int:
@@ -135,7 +142,8 @@ def choose_run_id(folder: Path, algo: str, env_id: str, seed: int, reserved: Seq
     """
     existing = runs_by_id(folder, algo, env_id)
     mine = {run_id: run for run_id, run in existing.items() if run.seed == seed}
-    resumable = [(run.checkpoint["num_timesteps"], run_id) for run_id, run in mine.items() if run.checkpoint]
+    checkpoints = {run_id: run.checkpoint for run_id, run in mine.items()}
+    resumable = [(checkpoint.num_timesteps, run_id) for run_id, checkpoint in checkpoints.items() if checkpoint]
     if resumable:
         return max(resumable)[1]
     preferred = seed + 1
@@ -152,8 +160,8 @@ def choose_run_id(folder: Path, algo: str, env_id: str, seed: int, reserved: Seq
 def train_job(job: Job, train_args: list[str], cwd: str, board: Any = None) -> bool:
     """
     The Ray task: ``sgfd-zoo train`` of ``job`` in this worker process, its output appended to the job's
-    log file, its progress sent to ``board``. Resumes from the run's checkpoint when it has one. Returns
-    whether it resumed.
+    log file, its progress sent to ``board``. Resumes from the run's checkpoint when it has one, and starts
+    it again from step 0 when none of its checkpoints verifies. Returns whether it resumed.
 
     :param job: The run
     :param train_args: Flags for ``sgfd-zoo train`` besides --algo, --env, --seed, -f
@@ -163,18 +171,21 @@ def train_job(job: Job, train_args: list[str], cwd: str, board: Any = None) -> b
     if os.path.isdir(cwd):
         os.chdir(cwd)
     # Decided here, not when planning: a retry after a crash continues from the newest checkpoint.
-    resume = read_checkpoint(job.run_dir) is not None
+    resume = job.run.checkpoint is not None
     argv = ["--algo", job.algo, "--env", job.env_id, "--seed", str(job.seed), "-f", str(job.folder)]
     argv += ["--run-id", str(job.run_id), *train_args]
-    if resume:
-        argv.append("--resume")
     reporter = None if board is None else (lambda report: board.report.remote(job.name, report))
     job.log_file.parent.mkdir(parents=True, exist_ok=True)
     with _output_to(job.log_file):
         what = "resuming from its checkpoint" if resume else "new run"
         print(f"=== sgfd-zoo sweep, {time.strftime('%Y-%m-%d %H:%M:%S')}: {job} in {job.run_dir} ({what})", flush=True)
         try:
-            training.train(argv, progress_reporter=reporter)
+            try:
+                training.train([*argv, "--resume"] if resume else argv, progress_reporter=reporter)
+            except NoUsableCheckpoint as error:
+                print(f"{error}\n=== so starting it again from step 0", flush=True)
+                resume = False
+                training.train(argv, progress_reporter=reporter)
         except SystemExit as error:
             # argparse exits on bad flags; a SystemExit would end the Ray worker (a "crash" Ray retries).
             sys.stderr.flush()
@@ -182,8 +193,8 @@ def train_job(job: Job, train_args: list[str], cwd: str, board: Any = None) -> b
         except BaseException:
             traceback.print_exc()
             raise
-    if not job.run.model_path.exists():
-        raise RuntimeError(f"sgfd-zoo train ended without saving {job.run.model_path}")
+    if not job.run.finished:
+        raise RuntimeError(f"sgfd-zoo train ended, but {job.run_dir} is not a finished run")
     return resume
 
 
@@ -300,8 +311,10 @@ def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
 
 def main(argv: list[str]) -> int:
     args, train_args = parse_args(argv)
-    jobs, done = plan(args.folder, args.algos, args.envs, args.seeds)
-    n_resume = sum(read_checkpoint(job.run_dir) is not None for job in jobs)
+    jobs, done, problems = plan(args.folder, args.algos, args.envs, args.seeds)
+    for problem in problems:
+        print(f"sweep: {problem}; read as if it were absent")
+    n_resume = sum(job.run.checkpoint is not None for job in jobs)
     print(
         f"sweep: {len(jobs) + len(done)} runs ({len(args.algos)} algos x {len(args.envs)} envs x {len(args.seeds)} "
         f"seeds) in {args.folder}: {len(done)} finished already, {len(jobs)} to train ({n_resume} to resume)"
@@ -333,7 +346,7 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
 
     _start_ray(args)
     try:
-        board = ray.remote(num_cpus=0)(ProgressBoard).remote()
+        board = ray.remote(num_cpus=0)(ProgressBoard).options(name=BOARD_NAME).remote()
         task = ray.remote(
             num_cpus=args.cpus_per_run,
             num_gpus=args.gpus_per_run,
@@ -346,11 +359,18 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
         cwd = os.getcwd()
         pending = {task.options(name=f"sweep {job}").remote(job, train_args, cwd, board): job for job in jobs}
         status: dict[str, str] = {}
+        reports: dict[str, dict[str, Any]] = {}
         failures = []
         with LiveView(args.progress_interval) as view:
             while pending:
                 done, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
-                reports = ray.get(board.snapshot.remote())
+                if board is not None:
+                    try:
+                        reports = ray.get(board.snapshot.remote())
+                    except ray.exceptions.RayActorError as error:
+                        # Only the live view is lost: the runs report to a dead actor, which Ray drops.
+                        board, reports = None, {}
+                        view.message(f"sweep: the progress board stopped ({_reason(error)}); the runs go on")
                 for ref in done:
                     job = pending.pop(ref)
                     count = f"[{len(jobs) - len(pending)}/{len(jobs)}]"

@@ -13,10 +13,11 @@ import functools
 import io
 import sys
 from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 from typing import Any
 
 from zoo.algos import SGFD_ALGOS
-from zoo.arguments import ZooError, check_env_id, has_flag
+from zoo.arguments import ZooError, check_env_id, flag_value, has_flag
 
 DEFAULT_SAVE_FREQ = 100_000
 
@@ -68,6 +69,7 @@ def train(
         run_id=ours.run_id,
         progress_reporter=progress_reporter,
         check_only=check_only,
+        command=list(argv),
     )
     quiet = contextlib.redirect_stdout(io.StringIO()) if check_only else contextlib.nullcontext()
     with replaced(rl_zoo3.train, "ExperimentManager", manager), command_line(parser.prog, rest), quiet:
@@ -81,15 +83,22 @@ def optimize(argv: Sequence[str]) -> int:
 
 
 def enjoy(argv: Sequence[str]) -> int:
-    """rl-zoo3's enjoy on SGFD's registered envs; reads ./logs unless -f says otherwise."""
+    """rl-zoo3's enjoy on SGFD's registered envs; reads ./logs unless -f says otherwise. Without --exp-id it
+    watches the newest finished run (rl-zoo3's newest folder may be a run still training or stopped)."""
     import rl_zoo3.enjoy
 
     from zoo.experiment import register_algorithms
+    from zoo.runs import select_run
 
     register_algorithms()
     argv = list(argv)
     if not (has_flag(argv, "-f") or has_flag(argv, "--folder")):
         argv += ["-f", "logs"]
+    folder = flag_value(argv, "-f") or flag_value(argv, "--folder")
+    algo, env_id = flag_value(argv, "--algo"), flag_value(argv, "--env")
+    chosen = ("--exp-id", "--load-best", "--load-checkpoint", "--load-last-checkpoint")
+    if algo is not None and env_id is not None and not any(has_flag(argv, flag) for flag in chosen):
+        argv += ["--exp-id", str(select_run(Path(folder), env_id, algo).run_id)]
     try:
         with command_line("sgfd-zoo enjoy", argv):
             rl_zoo3.enjoy.enjoy()
