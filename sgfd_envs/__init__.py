@@ -1,12 +1,14 @@
 """DeepMind Control generalisation benchmark tasks as gymnasium ids.
 
-``import sgfd_envs`` registers the ids of :data:`SGFD_IDS`:
+``import sgfd_envs`` registers every id of :data:`ENV_IDS`:
 
-- ``SGFD/{walker-walk,cheetah-run,finger-spin,walker-run,finger-turn}-v0``: distracting backgrounds
-  (splits ``train``, ``test``);
-- ``SGFD/MT-...-v0``: modified morphology (splits ``train``, ``interpolation``, ``extrapolation``);
+- :data:`SGFD_IDS`, the paper's ten: ``SGFD/{walker-walk,cheetah-run,finger-spin,walker-run,finger-turn}-v0``,
+  distracting backgrounds (splits ``train``, ``test``), and ``SGFD/MT-...-v0``, modified morphology (splits
+  ``train``, ``interpolation``, ``extrapolation``);
 - ``SGFD/CW-{picking,pushing}-v0`` (:data:`CAUSAL_WORLD_IDS`): Causal World with the block's mass or size
-  per domain, the MT splits; making them needs ``pip install -e ".[causalworld]"``.
+  per domain, the MT splits; making them needs ``pip install -e ".[causalworld]"``;
+- :data:`BENCHMARK_IDS`: the benchmarks of the field on dm_control's own tasks, ``DMCGB/<task>-v0``,
+  ``DMCGB2/<task>-v0`` and ``DCS/<task>-v0`` (:mod:`sgfd_envs.benchmarks`), the split being the test mode.
 """
 
 import os
@@ -26,7 +28,9 @@ if sys.platform.startswith("linux") and "MUJOCO_GL" not in os.environ:
 
 # Imported after the line above: it loads dm_control.
 from sgfd_envs.registry import (
+    BENCHMARK_IDS,
     CAUSAL_WORLD_IDS,
+    ENV_IDS,
     SGFD_IDS,
     make_domain_vec_env,
     n_domains,
@@ -37,4 +41,13 @@ from sgfd_envs.registry import (
 
 register_envs()
 
-__all__ = ["CAUSAL_WORLD_IDS", "SGFD_IDS", "make_domain_vec_env", "n_domains", "splits", "test_splits"]
+__all__ = [
+    "BENCHMARK_IDS",
+    "CAUSAL_WORLD_IDS",
+    "ENV_IDS",
+    "SGFD_IDS",
+    "make_domain_vec_env",
+    "n_domains",
+    "splits",
+    "test_splits",
+]

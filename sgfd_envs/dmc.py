@@ -4,12 +4,16 @@ Rendering reuses one MuJoCo scene per env with shadows, reflections and multisam
 background source the floor (every plane geom) and the skybox are hidden too, and colour and depth
 are read back in the same pass: background pixels are exactly those where the depth buffer kept its
 cleared value, and every robot pixel stays as MuJoCo drew it.
+
+The benchmark ids (:mod:`sgfd_envs.benchmarks`) pass a :class:`Distraction` instead: it changes what is
+drawn (materials, textures, the camera's pose for one render) and never the physics.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 import gymnasium as gym
 import mujoco
@@ -79,16 +83,20 @@ class CameraRenderer:
     :param size: image height and width in pixels
     :param camera_id: index of a camera defined in the model
     :param hide_backdrop: hide plane geoms and the skybox and report their pixels as background
+    :param hide_sky: hide only the skybox and report its pixels as background (the floor stays)
     """
 
     # MuJoCo draws geom groups 0..5; moving the planes to the last one lets one option hide them.
     _HIDDEN_GROUP = mujoco.mjNGROUP - 1
 
-    def __init__(self, physics: Physics, size: int, camera_id: int, hide_backdrop: bool) -> None:
+    def __init__(
+        self, physics: Physics, size: int, camera_id: int, hide_backdrop: bool, hide_sky: bool = False
+    ) -> None:
         model = physics.model
         if not 0 <= camera_id < model.ncam:
             raise ValueError(f"camera_id must be in 0..{model.ncam - 1} for this model, got {camera_id!r}")
         self._physics = physics
+        self.camera_id = camera_id
         self._hide_backdrop = hide_backdrop
         self._scene = wrapper.MjvScene(model=model)
         self._option = wrapper.MjvOption()
@@ -105,9 +113,11 @@ class CameraRenderer:
             model.geom_group[planes] = self._HIDDEN_GROUP
             self._option.geomgroup[self._HIDDEN_GROUP] = 0
             self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
+        if hide_sky:
+            self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
         self._rect = mujoco.MjrRect(0, 0, size, size)
         self._rgb = np.empty((size, size, 3), dtype=np.uint8)
-        self._depth = np.empty((size, size), dtype=np.float32) if hide_backdrop else None
+        self._depth = np.empty((size, size), dtype=np.float32) if hide_backdrop or hide_sky else None
         contexts = physics.contexts
         with contexts.gl.make_current() as ctx:
             ctx.call(mujoco.mjr_setBuffer, mujoco.mjtFramebuffer.mjFB_OFFSCREEN, contexts.mujoco.ptr)
@@ -117,22 +127,40 @@ class CameraRenderer:
         mujoco.mjr_render(self._rect, self._scene.ptr, context)
         mujoco.mjr_readPixels(self._rgb, self._depth, self._rect, context)
 
-    def render(self) -> tuple[np.ndarray, np.ndarray | None]:
+    def upload_texture(self, texture_id: int) -> None:
+        """Send texture ``texture_id`` of the model (after its ``tex_data`` or size changed) to the GPU."""
+        contexts = self._physics.contexts
+        with contexts.gl.make_current() as ctx:
+            ctx.call(mujoco.mjr_uploadTexture, self._physics.model.ptr, contexts.mujoco.ptr, texture_id)
+
+    def render(
+        self, overrides: Sequence[tuple[np.ndarray, int, np.ndarray]] = ()
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """Render the current state.
 
-        :return: a new uint8 (H, W, 3) RGB image, top row first, and with ``hide_backdrop`` the
-            bool (H, W) mask of background pixels (else None)
+        :param overrides: ``(array, row, value)`` triples of ``physics.data`` arrays (a camera's
+            ``cam_xpos``/``cam_xmat``, a site's ``site_xpos``) set for this render only and restored after it,
+            so a moved camera changes the view and never the simulation
+        :return: a new uint8 (H, W, 3) RGB image, top row first, and with ``hide_backdrop`` or
+            ``hide_sky`` the bool (H, W) mask of background pixels (else None)
         """
         physics = self._physics
-        mujoco.mjv_updateScene(
-            physics.model.ptr,
-            physics.data.ptr,
-            self._option.ptr,
-            self._perturb.ptr,
-            self._camera.ptr,
-            mujoco.mjtCatBit.mjCAT_ALL,
-            self._scene.ptr,
-        )
+        saved = [(array, row, array[row].copy()) for array, row, _ in overrides]
+        try:
+            for array, row, value in overrides:
+                array[row] = value
+            mujoco.mjv_updateScene(
+                physics.model.ptr,
+                physics.data.ptr,
+                self._option.ptr,
+                self._perturb.ptr,
+                self._camera.ptr,
+                mujoco.mjtCatBit.mjCAT_ALL,
+                self._scene.ptr,
+            )
+        finally:
+            for array, row, value in saved:
+                array[row] = value
         with physics.contexts.gl.make_current() as ctx:
             ctx.call(self._draw_and_read)
         # OpenGL's first row is the bottom of the image.
@@ -140,6 +168,45 @@ class CameraRenderer:
         if self._depth is None:
             return rgb, None
         return rgb, self._depth[::-1] == _CLEARED_DEPTH
+
+
+class Distraction(Protocol):
+    """A benchmark's change to the picture (colours, textures, camera pose, a video behind the robot).
+
+    It is made for one env's physics. It may edit the model's visual fields (materials, textures) and the
+    poses the renderer uses for one render; the physics, and so the task and its rewards, stay those of
+    dm_control. Its randomness comes from the generator the env hands it, separate from the physics' seed.
+    """
+
+    #: what the renderer hides and reports as background: ``"nothing"``, ``"sky"`` or ``"backdrop"``
+    #: (the skybox and every plane)
+    hide: str
+
+    def start_episode(self, rng: np.random.Generator, reseeded: bool) -> None:
+        """Draw this episode's distraction, after dm_control's reset.
+
+        :param rng: the distraction's generator
+        :param reseeded: whether ``reset(seed=...)`` just reseeded ``rng`` (sequences restart)
+        """
+        ...
+
+    def control_step(self) -> None:
+        """Advance a dynamic distraction after one dm_control step."""
+        ...
+
+    def render(self, renderer: CameraRenderer, agent_step: int) -> np.ndarray:
+        """The frame of the current state: uint8 (H, W, 3).
+
+        :param renderer: the env's renderer (made with this distraction's ``hide``)
+        :param agent_step: agent steps since the reset
+        """
+        ...
+
+
+HIDE_MODES = ("nothing", "sky", "backdrop")
+# Offset of the distraction's seed stream: reset(seed=s) seeds the physics from s and the distraction from
+# (s, this), so a seed gives the same physics in every split.
+DISTRACTION_SEED_STREAM = 0x5EED
 
 
 class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -160,6 +227,8 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
     :param background: source of background frames behind the robot, None to render floor and skybox
     :param camera_id: model camera to render
     :param render_mode: None or ``"rgb_array"`` (``render()`` returns the current frame)
+    :param distraction: a benchmark's visual distraction (instead of ``background``); its generator is
+        seeded from ``(seed, DISTRACTION_SEED_STREAM)`` at ``reset(seed=seed)``
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 25}
@@ -175,7 +244,12 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         background: BackgroundSource | None = None,
         camera_id: int = 0,
         render_mode: str | None = None,
+        distraction: Distraction | None = None,
     ) -> None:
+        if background is not None and distraction is not None:
+            raise ValueError("give either background= or distraction=, not both")
+        if distraction is not None and distraction.hide not in HIDE_MODES:
+            raise ValueError(f"distraction.hide must be one of {HIDE_MODES}, got {distraction.hide!r}")
         if obs_type not in OBS_TYPES:
             raise ValueError(f"obs_type must be one of {OBS_TYPES}, got {obs_type!r}")
         check_image_size(image_size)
@@ -190,6 +264,8 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         self.image_size = int(image_size)
         self.render_mode = render_mode
         self._background = background
+        self._distraction = distraction
+        self._distraction_rng: np.random.Generator | None = None
         self._camera_id = camera_id
         configure_offscreen_buffer(dm_env.physics, self.image_size)
         # Made on first render, so state-only envs never open an OpenGL context.
@@ -246,6 +322,11 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         return self.label.morphology_value
 
     @property
+    def distraction(self) -> Distraction | None:
+        """The benchmark distraction this env draws (None for SGFD's ids and a benchmark's train split)."""
+        return self._distraction
+
+    @property
     def physics(self) -> Physics:
         """The dm_control physics (read it; changing it mid-episode breaks reproducibility)."""
         return self._dm_env.physics
@@ -260,9 +341,16 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _frame(self) -> np.ndarray:
         if self._renderer is None:
+            hide = self._distraction.hide if self._distraction is not None else "nothing"
             self._renderer = CameraRenderer(
-                self._dm_env.physics, self.image_size, self._camera_id, hide_backdrop=self._background is not None
+                self._dm_env.physics,
+                self.image_size,
+                self._camera_id,
+                hide_backdrop=self._background is not None or hide == "backdrop",
+                hide_sky=hide == "sky",
             )
+        if self._distraction is not None:
+            return self._distraction.render(self._renderer, self._agent_steps)
         rgb, background_mask = self._renderer.render()
         if self._background is None:
             return rgb
@@ -282,7 +370,8 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, int]]:
-        """Start an episode; ``seed`` seeds the initial state and the background start.
+        """Start an episode; ``seed`` seeds the initial state and the background start (a distraction
+        from a stream of its own).
 
         :param seed: seed of this env's ``np_random``
         :param options: unused
@@ -293,6 +382,12 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         self._agent_steps = 0
         if self._background is not None:
             self._background_phase = float(self.np_random.random())
+        if self._distraction is not None:
+            reseeded = seed is not None or self._distraction_rng is None
+            if reseeded:
+                entropy = None if seed is None else [int(seed), DISTRACTION_SEED_STREAM]
+                self._distraction_rng = np.random.default_rng(entropy)
+            self._distraction.start_episode(self._distraction_rng, reseeded)
         return self._observation(time_step.observation), self._info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, int]]:
@@ -310,6 +405,8 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         terminated = False
         for _ in range(self.action_repeat):
             time_step = self._dm_env.step(action)
+            if self._distraction is not None:
+                self._distraction.control_step()
             reward += time_step.reward or 0.0
             terminated = bool(time_step.discount == 0.0)
             if terminated:

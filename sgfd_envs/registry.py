@@ -1,4 +1,5 @@
-"""The table of SGFD ids, their splits and domains, and their registration with gymnasium."""
+"""The table of every id (SGFD's and the benchmarks'), their splits and domains, and their registration with
+gymnasium."""
 
 from __future__ import annotations
 
@@ -20,6 +21,8 @@ from sgfd_envs.backgrounds import (
     make_background,
     n_background_domains,
 )
+from sgfd_envs.benchmarks import BENCHMARKS, dcs, dmcgb, dmcgb2
+from sgfd_envs.benchmarks.media import check_data_dir, davis_folder
 from sgfd_envs.causal_world import CausalWorldEnv, make_causal_world_env
 from sgfd_envs.dmc import DMCEnv, DomainLabel, check_image_size
 from sgfd_envs.morphology import MORPHOLOGY_SPLITS, SETTINGS, check_domain, select_setting, split_settings_of
@@ -32,12 +35,18 @@ BACKGROUND = "background"
 MORPHOLOGY = "morphology"
 # Causal World (optional extra): an object property per domain, with the MT ids' settings and splits.
 CAUSAL_WORLD = "causal_world"
+# The benchmarks of the field (sgfd_envs.benchmarks): one domain per split, the split is the test mode.
+DMCGB, DMCGB2, DCS = dmcgb.NAME, dmcgb2.NAME, dcs.NAME
+BENCHMARK_KINDS = (DMCGB, DMCGB2, DCS)
 # dm_control's episodes: 1000 simulator steps; gymnasium's TimeLimit ends them (agent steps = 1000 / repeat).
 EPISODE_CONTROL_STEPS = 1000
 SPLITS: dict[str, tuple[str, ...]] = {
     BACKGROUND: BACKGROUND_SPLITS,
     MORPHOLOGY: MORPHOLOGY_SPLITS,
     CAUSAL_WORLD: MORPHOLOGY_SPLITS,
+    DMCGB: dmcgb.MODES,
+    DMCGB2: dmcgb2.MODES,
+    DCS: dcs.SPLITS,
 }
 
 
@@ -45,11 +54,11 @@ SPLITS: dict[str, tuple[str, ...]] = {
 class TaskEntry:
     """One registered id.
 
-    :param robot: dm_control robot (``walker``, ``cheetah``, ``finger``)
+    :param robot: dm_control robot (``walker``, ``cheetah``, ``finger``, ``cartpole``, ``ball_in_cup``, ...)
     :param task: task of that robot
-    :param variation: ``"background"`` (task-irrelevant), ``"morphology"`` (task-relevant, MT) or
-        ``"causal_world"`` (an object property, Causal World)
-    :param action_repeat: dm_control steps per agent step (paper: 2)
+    :param variation: ``"background"`` (task-irrelevant), ``"morphology"`` (task-relevant, MT),
+        ``"causal_world"`` (an object property, Causal World), or a benchmark of :data:`BENCHMARK_KINDS`
+    :param action_repeat: dm_control steps per agent step (paper: 2; the benchmarks: theirs per task)
     """
 
     robot: str
@@ -65,7 +74,12 @@ class TaskEntry:
         return math.ceil(EPISODE_CONTROL_STEPS / self.action_repeat)
 
 
-# THE table: every SGFD id, registered on `import sgfd_envs`.
+def benchmark_id(benchmark: str, domain: str, task: str) -> str:
+    """The id of a benchmark task: ``DMCGB/ball_in_cup-catch-v0``."""
+    return f"{benchmark}/{domain}-{task}-v0"
+
+
+# THE table: every id, registered on `import sgfd_envs`.
 TASKS: dict[str, TaskEntry] = {
     "SGFD/walker-walk-v0": TaskEntry("walker", "walk", BACKGROUND),
     "SGFD/cheetah-run-v0": TaskEntry("cheetah", "run", BACKGROUND),
@@ -79,20 +93,40 @@ TASKS: dict[str, TaskEntry] = {
     "SGFD/MT-finger-turn-v0": TaskEntry("finger", "turn", MORPHOLOGY),
     "SGFD/CW-picking-v0": TaskEntry("trifinger", "picking", CAUSAL_WORLD, action_repeat=1),
     "SGFD/CW-pushing-v0": TaskEntry("trifinger", "pushing", CAUSAL_WORLD, action_repeat=1),
+    **{
+        benchmark_id(name, domain, task): TaskEntry(domain, task, name, action_repeat=repeat)
+        for name, module in BENCHMARKS.items()
+        for (domain, task), repeat in module.TASKS.items()
+    },
 }
 # The DeepMind Control benchmark of the paper's tables; the Causal World ids are its case studies.
-SGFD_IDS: tuple[str, ...] = tuple(i for i, entry in TASKS.items() if entry.variation != CAUSAL_WORLD)
+SGFD_IDS: tuple[str, ...] = tuple(i for i, entry in TASKS.items() if entry.variation in (BACKGROUND, MORPHOLOGY))
 CAUSAL_WORLD_IDS: tuple[str, ...] = tuple(i for i, entry in TASKS.items() if entry.variation == CAUSAL_WORLD)
+# Benchmark name -> its ids (DMCGB/..., DMCGB2/..., DCS/...).
+BENCHMARK_IDS: dict[str, tuple[str, ...]] = {
+    name: tuple(i for i, entry in TASKS.items() if entry.variation == name) for name in BENCHMARK_KINDS
+}
+# Every registered id.
+ENV_IDS: tuple[str, ...] = tuple(TASKS)
 
 
 def task_entry(env_id: str) -> TaskEntry:
-    """The table row of an SGFD id.
+    """The table row of an id.
 
-    :param env_id: one of :data:`SGFD_IDS`
+    :param env_id: one of :data:`ENV_IDS`
     """
     if env_id not in TASKS:
-        raise ValueError(f"env_id must be one of {SGFD_IDS}, got {env_id!r}")
+        raise ValueError(f"env_id must be one of {ENV_IDS}, got {env_id!r}")
     return TASKS[env_id]
+
+
+def benchmark_of(env_id: str) -> str | None:
+    """The benchmark an id belongs to (``"DMCGB"``, ``"DMCGB2"``, ``"DCS"``), None for SGFD's own ids.
+
+    :param env_id: one of :data:`ENV_IDS`
+    """
+    variation = task_entry(env_id).variation
+    return variation if variation in BENCHMARK_KINDS else None
 
 
 def _entry_of_kind(env_id: str, variation: str) -> TaskEntry:
@@ -104,9 +138,9 @@ def _entry_of_kind(env_id: str, variation: str) -> TaskEntry:
 
 
 def splits(env_id: str) -> tuple[str, ...]:
-    """Split names of an id, training split first.
+    """Split names of an id, training split first (for a benchmark id: ``"train"``, then its test modes).
 
-    :param env_id: one of :data:`SGFD_IDS`
+    :param env_id: one of :data:`ENV_IDS`
     """
     return SPLITS[task_entry(env_id).variation]
 
@@ -114,20 +148,33 @@ def splits(env_id: str) -> tuple[str, ...]:
 def test_splits(env_id: str) -> tuple[str, ...]:
     """The splits whose domains are never seen in training.
 
-    :param env_id: one of :data:`SGFD_IDS`
+    :param env_id: one of :data:`ENV_IDS`
     """
     return splits(env_id)[1:]
+
+
+def check_benchmark_split(env_id: str, split: str) -> str:
+    """Return ``split`` if it is a split of the benchmark id ``env_id``, else raise naming the allowed ones."""
+    allowed = splits(env_id)
+    if split not in allowed:
+        raise ValueError(f"split must be one of {allowed} for {benchmark_of(env_id)} ids, got {split!r}")
+    return split
 
 
 def n_domains(env_id: str, split: str = "train", **env_kwargs) -> int:
     """Number of domains in a split, without building an env.
 
-    :param env_id: one of :data:`SGFD_IDS`
+    :param env_id: one of :data:`ENV_IDS`
     :param split: a split of the id (see :func:`splits`)
     :param env_kwargs: the kwargs the envs would get; ``background_dir`` and ``split_settings`` matter
     """
-    if task_entry(env_id).variation == BACKGROUND:
+    variation = task_entry(env_id).variation
+    if variation == BACKGROUND:
         return n_background_domains(split, env_kwargs.get("background_dir"))
+    if variation in BENCHMARK_KINDS:
+        # One distribution per mode; its episodes resample the distraction.
+        check_benchmark_split(env_id, split)
+        return 1
     return len(split_settings_of(split, env_kwargs.get("split_settings")))
 
 
@@ -227,10 +274,152 @@ def make_morphology_env(
     return ObserveParameter(env, scaled, morphology.parameter)
 
 
+def _benchmark_env(
+    env_id: str,
+    kind: str,
+    split: str,
+    domain: int,
+    obs_type: str,
+    image_size: int,
+    render_mode: str | None,
+    make_distraction: Callable[[Any], Any],
+    dm_env: Any = None,
+) -> DMCEnv:
+    """A benchmark id's env: its dm_control task, and ``make_distraction(physics)`` unless the split is train."""
+    entry = _entry_of_kind(env_id, kind)
+    check_image_size(image_size)
+    check_benchmark_split(env_id, split)
+    domain = check_domain(domain, 1, split)
+    if dm_env is None:
+        dm_env = domains.load_suite(entry.robot, entry.task)
+    distraction = None if split == "train" else make_distraction(dm_env.physics)
+    return DMCEnv(
+        dm_env,
+        DomainLabel(split=split, domain=domain, n_domains=1),
+        action_repeat=entry.action_repeat,
+        obs_type=obs_type,
+        image_size=image_size,
+        render_mode=render_mode,
+        distraction=distraction,
+    )
+
+
+def make_dmcgb_env(
+    env_id: str,
+    split: str = "train",
+    domain: int = 0,
+    *,
+    data_dir: str | Path | None = None,
+    obs_type: str = "pixels",
+    image_size: int = 84,
+    render_mode: str | None = None,
+) -> DMCEnv:
+    """A DMC-GB env (entry point of the ``DMCGB/`` ids; see :mod:`sgfd_envs.benchmarks.dmcgb`).
+
+    :param env_id: one of ``BENCHMARK_IDS["DMCGB"]``
+    :param split: ``"train"`` (dm_control's task) or a test mode: ``"color_easy"``, ``"color_hard"``,
+        ``"video_easy"``, ``"video_hard"``
+    :param domain: 0 (each split is one distribution)
+    :param data_dir: DMC-GB's ``src/env/data`` folder (colour sets and clips); None: procedural stand-ins
+    :param obs_type: ``"pixels"`` or ``"state"``
+    :param image_size: height and width of the pixel observation
+    :param render_mode: None or ``"rgb_array"``
+    """
+    if data_dir is not None:
+        check_data_dir(data_dir)
+    return _benchmark_env(
+        env_id, DMCGB, split, domain, obs_type, image_size, render_mode,
+        lambda physics: dmcgb.DMCGBDistraction(physics, split, image_size, data_dir),
+    )  # fmt: skip
+
+
+def make_dmcgb2_env(
+    env_id: str,
+    split: str = "train",
+    domain: int = 0,
+    *,
+    data_dir: str | Path | None = None,
+    obs_type: str = "pixels",
+    image_size: int = 84,
+    render_mode: str | None = None,
+) -> DMCEnv:
+    """A DMC-GB2 env (entry point of the ``DMCGB2/`` ids; see :mod:`sgfd_envs.benchmarks.dmcgb2`).
+
+    :param env_id: one of ``BENCHMARK_IDS["DMCGB2"]``
+    :param split: ``"train"`` or one of the twelve test modes (``"rotate_easy"``, ..., ``"color_video_hard"``)
+    :param domain: 0 (each split is one distribution)
+    :param data_dir: DMC-GB's data folder (DMC-GB2's ``envs/dmcgb/data`` holds the same files); None:
+        procedural stand-ins
+    :param obs_type: ``"pixels"`` or ``"state"``
+    :param image_size: height and width of the pixel observation
+    :param render_mode: None or ``"rgb_array"``
+    """
+    entry = _entry_of_kind(env_id, DMCGB2)
+    if data_dir is not None:
+        check_data_dir(data_dir)
+    check_image_size(image_size)
+    check_benchmark_split(env_id, split)
+    dm_env = None
+    if "video" in split:
+        dm_env = dmcgb2.load_with_projector(entry.robot, entry.task, dmcgb2.projector_texture_side(image_size))
+    return _benchmark_env(
+        env_id, DMCGB2, split, domain, obs_type, image_size, render_mode,
+        lambda physics: dmcgb2.DMCGB2Distraction(physics, entry.robot, split, image_size, data_dir),
+        dm_env,
+    )  # fmt: skip
+
+
+def make_dcs_env(
+    env_id: str,
+    split: str = "train",
+    domain: int = 0,
+    *,
+    dynamic: bool = False,
+    distractions: Sequence[str] = dcs.DISTRACTIONS,
+    background_videos: str = "train",
+    background_dir: str | Path | None = None,
+    obs_type: str = "pixels",
+    image_size: int = 84,
+    render_mode: str | None = None,
+) -> DMCEnv:
+    """A Distracting Control Suite env (entry point of the ``DCS/`` ids; see :mod:`sgfd_envs.benchmarks.dcs`).
+
+    :param env_id: one of ``BENCHMARK_IDS["DCS"]``
+    :param split: ``"train"`` (no distraction) or a difficulty: ``"easy"``, ``"medium"``, ``"hard"``
+    :param domain: 0 (each split is one distribution)
+    :param dynamic: distractions that move during the episode (DCS's default: static)
+    :param distractions: any of ``"background"``, ``"camera"``, ``"colour"`` (default all three)
+    :param background_videos: DCS's DAVIS list, ``"train"`` (60 videos) or ``"validation"`` (30)
+    :param background_dir: DAVIS's ``JPEGImages/480p`` folder (or the DAVIS folder above it); None:
+        procedural stand-ins
+    :param obs_type: ``"pixels"`` or ``"state"``
+    :param image_size: height and width of the pixel observation
+    :param render_mode: None or ``"rgb_array"``
+    """
+    entry = _entry_of_kind(env_id, DCS)
+    # Checked on every split, train too, so a bad value fails where it is given.
+    distractions = dcs.check_distractions(distractions)
+    if not isinstance(dynamic, bool):
+        raise ValueError(f"dynamic must be True or False, got {dynamic!r}")
+    if background_videos not in dcs.VIDEO_SPLITS:
+        raise ValueError(f"background_videos must be one of {dcs.VIDEO_SPLITS}, got {background_videos!r}")
+    if background_dir is not None:
+        davis_folder(background_dir)
+    return _benchmark_env(
+        env_id, DCS, split, domain, obs_type, image_size, render_mode,
+        lambda physics: dcs.DCSDistraction(
+            physics, entry.robot, split, dynamic, distractions, background_videos, image_size, background_dir
+        ),
+    )  # fmt: skip
+
+
 BUILDERS: dict[str, Callable[..., gym.Env]] = {
     BACKGROUND: make_background_env,
     MORPHOLOGY: make_morphology_env,
     CAUSAL_WORLD: make_causal_world_env,
+    DMCGB: make_dmcgb_env,
+    DMCGB2: make_dmcgb2_env,
+    DCS: make_dcs_env,
 }
 
 
@@ -296,7 +485,7 @@ def make_domain_vec_env(
 
     Each sub-env is wrapped in SB3's Monitor and seeded ``seed + i`` (its action space too).
 
-    :param env_id: one of :data:`SGFD_IDS`
+    :param env_id: one of :data:`ENV_IDS`
     :param split: a split of the id (see :func:`splits`)
     :param n_envs: number of sub-envs, default one per domain
     :param seed: seed of sub-env 0

@@ -1,7 +1,9 @@
-"""The robots, one file each: their XML edit, tasks and a ``load(task, scale)`` like ``suite.load``."""
+"""The robots, one file each: their XML edit, tasks and a ``load(task, scale)`` like ``suite.load``; and the
+unmodified dm_control tasks the benchmarks run on (:func:`load_suite`)."""
 
 from __future__ import annotations
 
+import importlib
 from types import ModuleType
 
 from dm_control.rl import control
@@ -38,3 +40,30 @@ def morphology(robot: str) -> Morphology:
     :param robot: ``"walker"``, ``"cheetah"`` or ``"finger"``
     """
     return robot_module(robot).MORPHOLOGY
+
+
+# The dm_control tasks of DMC-GB, DMC-GB2 and the Distracting Control Suite, unmodified: (domain, task).
+SUITE_TASKS = (
+    ("walker", "walk"),
+    ("walker", "stand"),
+    ("cheetah", "run"),
+    ("finger", "spin"),
+    ("cartpole", "swingup"),
+    ("ball_in_cup", "catch"),
+    ("reacher", "easy"),
+)
+
+
+def load_suite(domain: str, task: str) -> control.Environment:
+    """dm_control's own task with no time limit (the gymnasium env counts steps), as ``suite.load`` builds it.
+
+    :param domain: a dm_control domain of :data:`SUITE_TASKS`, e.g. ``"ball_in_cup"``
+    :param task: its task, e.g. ``"catch"``
+    """
+    if (domain, task) not in SUITE_TASKS:
+        raise ValueError(f"(domain, task) must be one of {SUITE_TASKS}, got {(domain, task)!r}")
+    if domain == "cheetah":
+        # The same model as dm_control's, without MuJoCo's deprecation warning at every compile.
+        return cheetah.load(task)
+    module = importlib.import_module(f"dm_control.suite.{domain}")
+    return getattr(module, task)(time_limit=float("inf"))

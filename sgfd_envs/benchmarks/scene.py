@@ -1,0 +1,155 @@
+"""What the benchmarks change in a dm_control scene, without touching its physics: named ids, material colours,
+textures rebuilt or replaced and sent to the GPU, rotations of a camera's frame.
+
+Every edit here writes visual fields of the model (``mat_rgba``, ``tex_data``, ``tex_width``/``tex_height``) or a
+pose the renderer uses for one render; none of them enters MuJoCo's dynamics.
+"""
+
+from __future__ import annotations
+
+import functools
+import xml.etree.ElementTree as ET
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+from dm_control.mujoco import Physics
+from dm_control.suite import common
+
+from sgfd_envs.dmc import CameraRenderer
+
+# dm_control's shared assets: the skybox texture is in skybox.xml, the floor's grid texture in materials.xml.
+_ASSET_OF_TEXTURE = {"skybox": "./common/skybox.xml", "grid": "./common/materials.xml"}
+
+
+def object_id(physics: Physics, kind: mujoco.mjtObj, name: str) -> int:
+    """The index of a named model object, or a ValueError naming it.
+
+    :param physics: the physics whose model holds it
+    :param kind: e.g. ``mujoco.mjtObj.mjOBJ_TEXTURE``
+    :param name: its name in the XML
+    """
+    index = mujoco.mj_name2id(physics.model.ptr, kind, name)
+    if index < 0:
+        raise ValueError(f"this model has no {kind.name.removeprefix('mjOBJ_').lower()} named {name!r}")
+    return index
+
+
+def suite_texture_attributes(name: str) -> dict[str, str]:
+    """The XML attributes of one of dm_control's shared textures (``"skybox"`` or ``"grid"``).
+
+    :param name: the texture's name
+    """
+    if name not in _ASSET_OF_TEXTURE:
+        raise ValueError(f"name must be one of {tuple(_ASSET_OF_TEXTURE)}, got {name!r}")
+    root = ET.fromstring(common.ASSETS[_ASSET_OF_TEXTURE[name]])
+    element = next(e for e in root.iter("texture") if e.get("name") == name)
+    return dict(element.attrib)
+
+
+def rgb_attribute(rgb: Sequence[float]) -> str:
+    """An MJCF colour attribute from three floats in [0, 1]."""
+    return " ".join(f"{float(c):.17g}" for c in rgb)
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled_texture(items: tuple[tuple[str, str], ...]) -> np.ndarray:
+    attributes = dict(items)
+    element = ET.Element("texture", attributes)
+    xml = f"<mujoco><asset>{ET.tostring(element, encoding='unicode')}</asset></mujoco>"
+    data = mujoco.MjModel.from_xml_string(xml).tex_data.copy()
+    data.flags.writeable = False
+    return data
+
+
+def suite_texture_data(name: str, **changes: str) -> np.ndarray:
+    """The bytes MuJoCo builds for one of dm_control's shared builtin textures with some attributes changed
+    (e.g. ``rgb1``), exactly as compiling the changed XML would give them.
+
+    :param name: ``"skybox"`` or ``"grid"``
+    :param changes: attribute values replacing dm_control's, as MJCF strings
+    :return: read-only uint8 array of the texture's ``tex_data``
+    """
+    attributes = suite_texture_attributes(name)
+    unknown = set(changes) - {"rgb1", "rgb2", "markrgb"}
+    if unknown:
+        raise ValueError(f"only rgb1, rgb2 and markrgb of a texture can change, got {sorted(unknown)}")
+    attributes.update(changes)
+    return _compiled_texture(tuple(sorted(attributes.items())))
+
+
+class TextureSlot:
+    """One texture of a model whose content the benchmark replaces, sent to the GPU before the next render
+    that needs it (never more than once per change).
+
+    :param physics: the env's physics
+    :param name: the texture's name in the model
+    """
+
+    def __init__(self, physics: Physics, name: str) -> None:
+        self._model = physics.model
+        self.texture_id = object_id(physics, mujoco.mjtObj.mjOBJ_TEXTURE, name)
+        self._address = int(self._model.tex_adr[self.texture_id])
+        height, width = int(self._model.tex_height[self.texture_id]), int(self._model.tex_width[self.texture_id])
+        self.original_shape = (height, width)
+        self._capacity = height * width * int(self._model.tex_nchannel[self.texture_id])
+        self._original = self._model.tex_data[self._address : self._address + self._capacity].copy()
+        self._stale = False
+
+    def write(self, data: np.ndarray, shape: tuple[int, int] | None = None) -> None:
+        """Replace the texture's bytes (and, for a cube texture, its size: a square ``shape`` makes MuJoCo
+        draw the same image on all six faces).
+
+        :param data: uint8 bytes, height x width x 3 of ``shape``
+        :param shape: (height, width); default the texture's own
+        """
+        height, width = shape or self.original_shape
+        flat = np.asarray(data, dtype=np.uint8).reshape(-1)
+        if flat.size != height * width * 3 or flat.size > self._capacity:
+            raise ValueError(
+                f"texture data must be {height}x{width}x3 bytes and fit the texture's {self._capacity}, got {flat.size}"
+            )
+        self._model.tex_height[self.texture_id] = height
+        self._model.tex_width[self.texture_id] = width
+        self._model.tex_data[self._address : self._address + flat.size] = flat
+        self._stale = True
+
+    def restore(self) -> None:
+        """Put the model's own texture back."""
+        self.write(self._original, self.original_shape)
+
+    def upload_if_changed(self, renderer: CameraRenderer) -> None:
+        """Send the texture to the GPU if it changed since the last upload."""
+        if self._stale:
+            renderer.upload_texture(self.texture_id)
+            self._stale = False
+
+
+def rotation_x(degrees: float) -> np.ndarray:
+    """3x3 rotation about x by ``degrees``."""
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rotation_y(degrees: float) -> np.ndarray:
+    """3x3 rotation about y by ``degrees``."""
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rotation_z(degrees: float) -> np.ndarray:
+    """3x3 rotation about z by ``degrees``."""
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def camera_frame_override(physics: Physics, camera_id: int, rotation: np.ndarray) -> list:
+    """Renderer overrides that turn a camera's frame by ``rotation`` (in the camera's own axes: x right, y up,
+    looking along -z) for one render.
+
+    :param physics: the env's physics
+    :param camera_id: the rendered camera
+    :param rotation: 3x3 rotation applied on the right of the camera's world orientation
+    """
+    orientation = physics.data.cam_xmat[camera_id].reshape(3, 3)
+    return [(physics.data.cam_xmat, camera_id, (orientation @ rotation).reshape(-1))]
