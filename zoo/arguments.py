@@ -38,11 +38,11 @@ def check_env_id(env_id: str | None, flag: str = "--env") -> str:
     :param env_id: the value given
     :param flag: the option it came from
     """
-    if env_id not in sgfd_envs.SGFD_IDS:
-        known = ", ".join(sgfd_envs.SGFD_IDS)
+    if env_id not in sgfd_envs.ENV_IDS:
+        known = ", ".join(sgfd_envs.ENV_IDS)
         if env_id is None:
             raise ZooError(f"{flag} is required; one of {known}")
-        close = difflib.get_close_matches(env_id, sgfd_envs.SGFD_IDS, n=1)
+        close = difflib.get_close_matches(env_id, sgfd_envs.ENV_IDS, n=1)
         hint = f" (did you mean {close[0]}?)" if close else ""
         raise ZooError(f"{flag} {env_id!r} is not an SGFD id{hint}; choose from {known}")
     return env_id

@@ -59,7 +59,7 @@ def env_name(env_id: str) -> str:
     return env_id.replace("/", "-")
 
 
-ENV_IDS_BY_NAME = {env_name(env_id): env_id for env_id in sgfd_envs.SGFD_IDS}
+ENV_IDS_BY_NAME = {env_name(env_id): env_id for env_id in sgfd_envs.ENV_IDS}
 
 
 class UnreadableFile(ZooError):

@@ -73,7 +73,7 @@ def read_spec(path: Path) -> dict[str, Any]:
     spec["algos"] = checked_names("algos", spec["algos"], list(SGFD_ALGOS))
     import sgfd_envs
 
-    spec["envs"] = checked_names("envs", spec["envs"], list(sgfd_envs.SGFD_IDS))
+    spec["envs"] = checked_names("envs", spec["envs"], list(sgfd_envs.ENV_IDS))
     if not all(isinstance(seed, int) and seed >= 0 for seed in spec["seeds"]):
         raise ZooError(f"SPEC {path}: seeds must be integers >= 0, got {spec['seeds']}")
     spec["train"] = [str(flag) for flag in spec.get("train") or []]

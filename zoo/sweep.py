@@ -275,7 +275,7 @@ def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
     args, train_args = parser.parse_known_args(argv)
 
     args.algos = checked_names("--algos", args.algos, list(SGFD_ALGOS))
-    args.envs = checked_names("--envs", args.envs, list(sgfd_envs.SGFD_IDS))
+    args.envs = checked_names("--envs", args.envs, list(sgfd_envs.ENV_IDS))
     args.seeds = list(dict.fromkeys(args.seeds))
     for seed in args.seeds:
         if not 0 <= seed <= MAX_SEED:
