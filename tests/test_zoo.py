@@ -1,7 +1,6 @@
 """The sgfd-zoo command: train, evaluate, plot, resume and optimize through the console script."""
 
 import csv
-import json
 import os
 import signal
 import subprocess
@@ -19,7 +18,7 @@ from zoo.arguments import ZooError
 from zoo.cli import main as zoo_main
 from zoo.evaluate import read_results, render_tables
 from zoo.experiment import SGFDExperimentManager, hyperparams_file, register_algorithms
-from zoo.runs import RunFolder
+from zoo.runs import RunFolder, read_index
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 RUN_NAME = "SGFD-MT-walker-walk-v0"
@@ -227,22 +226,24 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(algo, tmp_path):
     run = logs / algo / f"{RUN_NAME}_1"
     deadline = time.monotonic() + 300
     try:
-        while (
-            not (run / "checkpoint.json").exists()
-            or json.loads((run / "checkpoint.json").read_text())["num_timesteps"] < 800
-        ):
+        while not (run / "checkpoint.json").exists() or read_index(run)[0].num_timesteps < 800:
             assert process.poll() is None, process.stderr.read().decode()[-3000:]
             assert time.monotonic() < deadline, "no checkpoint within 300 s"
             time.sleep(0.5)
     finally:
         os.kill(process.pid, signal.SIGKILL)
         process.wait()
-    checkpoint = json.loads((run / "checkpoint.json").read_text())
-    assert not (run / f"{RUN_NAME}.zip").exists()
-    assert (run / checkpoint["model"]).exists() and (run / checkpoint["replay_buffer"]).exists()
+    newest = read_index(run)[0]
+    assert not RunFolder(run).finished and not (run / f"{RUN_NAME}.zip").exists()
+    assert newest.problem(run) is None and {"model", "replay_buffer"} <= set(newest.files)
 
     result = zoo(*train_args, "-n", "1600", "--save-freq", "400", "--eval-freq", "400", "--resume")
-    assert f"Resuming {run}" in result.stdout
+    # The resumed model is the checkpoint's: a resume that restarted from step 0 would say "from 0 steps" (and
+    # log to progress.csv, not progress_from_<steps>.csv).
+    assert f"Resuming {run} from {newest.num_timesteps} steps" in result.stdout
+    with (run / f"progress_from_{newest.num_timesteps}.csv").open() as handle:
+        logged = [int(row["time/total_timesteps"]) for row in csv.DictReader(handle) if row["time/total_timesteps"]]
+    assert logged and min(logged) > newest.num_timesteps
     assert not (logs / algo / f"{RUN_NAME}_2").exists(), "resume must continue the run, not start another"
     assert (run / f"{RUN_NAME}.zip").exists()
     model = RunFolder(run).load_model()
@@ -253,7 +254,9 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(algo, tmp_path):
         steps = data["timesteps"].tolist()
     # The evaluations before the kill are kept and the resumed run appends to them.
     assert steps[0] == 400 and steps[-1] == 1600 and steps == sorted(steps)
-    assert len(list(run.glob("checkpoint_*_steps.zip"))) == 1, "only the newest checkpoint is kept"
+    assert RunFolder(run).finished
+    kept = sorted(path.name for path in run.glob("checkpoint_*_steps.zip"))
+    assert kept == ["checkpoint_1200_steps.zip", "checkpoint_1600_steps.zip"], "the two newest checkpoints are kept"
 
 
 @pytest.mark.slow
