@@ -102,9 +102,9 @@ def sgfd_in_phase(phase: str, policy: type, env: VecEnv, classifier_interval: in
         policy, env, actor_update_interval=1, classifier_start=0, classifier_interval=classifier_interval, **common
     )
     # The bench holds the phase by hand: a threshold no accuracy reaches keeps the classifier training,
-    # one every accuracy reaches keeps it idle; classifier_ready says whether the weights are on.
-    model.accuracy_threshold = float("inf") if phase in ("classifier", "mixed") else 0.0
-    model.classifier_ready = phase in ("steady", "mixed")
+    # one every accuracy reaches keeps it idle; the weighting's ready says whether the weights are on.
+    model.weighting.accuracy_threshold = float("inf") if phase in ("classifier", "mixed") else 0.0
+    model.weighting.ready = phase in ("steady", "mixed")
     return model
 
 

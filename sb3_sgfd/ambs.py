@@ -19,7 +19,8 @@ from sb3_sgfd.bisimulation import (
 )
 from sb3_sgfd.encoder_sac import EncoderSAC
 from sb3_sgfd.policies import AMBSEncoder
-from sb3_sgfd.representation import Batch, Representation, check_non_negative, register, step
+from sb3_sgfd.representation import Batch, Representation, register, step
+from sb3_sgfd.validation import check_non_negative
 
 
 @register("ambs")

@@ -9,7 +9,8 @@ from torch.nn import functional as F
 
 from sb3_sgfd.bisimulation import ProbabilisticTransitionModel, RewardDecoder, bisimulation_loss, gaussian_nll
 from sb3_sgfd.encoder_sac import EncoderSAC
-from sb3_sgfd.representation import Batch, Representation, check_non_negative, register, step
+from sb3_sgfd.representation import Batch, Representation, register, step
+from sb3_sgfd.validation import check_non_negative
 
 
 @register("dbc")

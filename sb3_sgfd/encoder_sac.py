@@ -37,6 +37,7 @@ from sb3_sgfd.augmentation import random_shift
 from sb3_sgfd.buffers import DomainReplayBuffer
 from sb3_sgfd.policies import AMBSPolicy, CnnPolicy, EncoderMlpPolicy, MlpPolicy, SGFDPolicy
 from sb3_sgfd.representation import Batch, Representation, make_representation
+from sb3_sgfd.validation import check_positive_int
 
 
 class EncoderSAC(SAC):
@@ -454,13 +455,6 @@ def finite(value: float, what: str, update_index: int) -> float:
     if not math.isfinite(value):
         raise RuntimeError(f"non-finite {what} ({value}) at update {update_index}; stopping before it spreads")
     return value
-
-
-def check_positive_int(**values: int) -> None:
-    """Refuse any of ``values`` that is not a positive integer, by name."""
-    for name, value in values.items():
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
 
 
 def image_shape(space: spaces.Space) -> tuple[int, int, int]:

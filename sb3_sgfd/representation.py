@@ -125,10 +125,3 @@ def step(loss: th.Tensor, *optimizers: th.optim.Optimizer) -> None:
     loss.backward()
     for optimizer in optimizers:
         optimizer.step()
-
-
-def check_non_negative(**values: float) -> None:
-    """Refuse any of ``values`` that is not a finite number >= 0, by name."""
-    for name, value in values.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < float("inf"):
-            raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 COVARIANCES = ("weighted", "literal")
 
@@ -140,23 +140,25 @@ def decorrelation_loss(
     _check_probs(feature_probs, rff.shape[1])
     _check_covariance(covariance)
     n, d, m = rff.shape
-    probs = torch.full((d,), 1.0 / d) if feature_probs is None else feature_probs
+    probs = rff.new_full((d,), 1.0 / d) if feature_probs is None else feature_probs
     pair_weights = _pair_weights(probs.to(rff), m)
     return _decorrelation_loss(rff.reshape(n, d * m), weights.to(rff), pair_weights, covariance)
 
 
-class WeightMemory:
+class WeightMemory(nn.Module):
     """Features and weight logits of past batches, which the solver decorrelates the current batch against.
 
     The official SGFD code (after StableNet) keeps one batch-sized memory: the loss is taken over the current
     batch and the memory together (its logits fixed), then the memory moves towards the current batch,
     ``memory = momentum * memory + (1 - momentum) * current`` (a running mean for its first
     ``1 / (1 - momentum)`` updates). The paper does not mention it; ``bench/decorrelation.py`` measures it.
+    A module whose state is its extra state, so that it is saved through torch (``map_location`` moves it).
 
     :param momentum: Weight of the memory in its update, in [0, 1)
     """
 
     def __init__(self, momentum: float = 0.9) -> None:
+        super().__init__()
         if isinstance(momentum, bool) or not isinstance(momentum, (int, float)) or not 0 <= momentum < 1:
             raise ValueError(f"memory momentum must be a number in [0, 1), got {momentum!r}")
         self.momentum = float(momentum)
@@ -164,28 +166,39 @@ class WeightMemory:
         self.logits: Tensor | None = None
         self.updates = 0
 
+    def remembers(self, features: Tensor) -> bool:
+        """Whether the memory holds rows of the shape of ``features`` (a batch of another size starts afresh)."""
+        return self.features is not None and self.features.shape == features.shape
+
     def update(self, features: Tensor, logits: Tensor) -> None:
         """Move the memory towards one solved batch.
 
-        :param features: the batch's standardised features (n, d)
+        :param features: the batch's features as the solver saw them (n, d)
         :param logits: the solver's logits theta for it (n,)
         """
-        if self.features is None or self.features.shape != features.shape:
+        features, logits = features.detach(), logits.detach()
+        if not self.remembers(features):
             self.features, self.logits, self.updates = features.clone(), logits.clone(), 0
         else:
-            # A running mean first, so that the zero-initialised start does not linger.
+            # A running mean first, so that the start does not linger.
             keep = min(self.momentum, self.updates / (self.updates + 1))
             self.features = keep * self.features + (1 - keep) * features
             self.logits = keep * self.logits + (1 - keep) * logits
         self.updates += 1
 
-    def state_dict(self) -> dict[str, object]:
+    def get_extra_state(self) -> dict[str, object]:
         return {"momentum": self.momentum, "features": self.features, "logits": self.logits, "updates": self.updates}
 
-    def load_state_dict(self, state: dict[str, object]) -> None:
+    def set_extra_state(self, state: dict[str, object]) -> None:
         self.momentum = float(state["momentum"])  # type: ignore[arg-type]
         self.features, self.logits = state["features"], state["logits"]  # type: ignore[assignment]
         self.updates = int(state["updates"])  # type: ignore[arg-type]
+
+    def _apply(self, fn, recurse=True):  # type: ignore[no-untyped-def]
+        # .to(device) moves the remembered tensors, which are not parameters or buffers.
+        self.features = None if self.features is None else fn(self.features)
+        self.logits = None if self.logits is None else fn(self.logits)
+        return super()._apply(fn, recurse)
 
 
 def _scaled_loss_gradient(features: Tensor, a: Tensor, doubled_pairs: Tensor, covariance: str) -> tuple[Tensor, Tensor]:
@@ -227,7 +240,7 @@ def loss_gradient(
     n, d, m = rff.shape
     _check_covariance(covariance)
     _check_probs(feature_probs, d)
-    probs = (torch.full((d,), 1.0 / d) if feature_probs is None else feature_probs).to(rff)
+    probs = (rff.new_full((d,), 1.0 / d) if feature_probs is None else feature_probs).to(rff)
     pair_weights = _pair_weights(probs, m)
     return _scaled_loss_gradient(rff.reshape(n, d * m), a, pair_weights + pair_weights.T, covariance)[0]
 
@@ -307,8 +320,7 @@ def learn_sample_weights(
         the tuple (weights, loss_before, loss_after) of this batch alone, same RFF draw
     """
     _check_batch(z, "z")
-    n, d = z.shape
-    _check_probs(feature_probs, d)
+    _check_probs(feature_probs, z.shape[1])
     _check_covariance(covariance)
     if isinstance(n_rff, bool) or not isinstance(n_rff, int) or n_rff < 1:
         raise ValueError(f"n_rff must be an int >= 1, got {n_rff!r}")
@@ -324,17 +336,64 @@ def learn_sample_weights(
     if memory is not None and not isinstance(memory, WeightMemory):
         raise ValueError(f"memory must be None or a WeightMemory, got {type(memory).__name__}")
 
+    weights, loss_before, loss_after = solve_weights(
+        z,
+        feature_probs,
+        n_rff=n_rff,
+        iters=iters,
+        lr=lr,
+        momentum=momentum,
+        weight_decay=weight_decay,
+        use_rff=use_rff,
+        covariance=covariance,
+        ess_penalty=ess_penalty,
+        feature_std=feature_std,
+        memory=memory,
+        max_step=max_step,
+        generator=generator,
+    )
+    if not torch.isfinite(weights).all():
+        raise RuntimeError("learn_sample_weights produced non-finite weights; lower lr")
+    return (weights, loss_before.item(), loss_after.item()) if return_losses else weights
+
+
+def solve_weights(
+    z: Tensor,
+    feature_probs: Tensor | None,
+    *,
+    n_rff: int,
+    iters: int,
+    lr: float,
+    momentum: float,
+    weight_decay: float,
+    use_rff: bool = True,
+    covariance: str = "weighted",
+    ess_penalty: float,
+    feature_std: float | None = 0.5,
+    memory: WeightMemory | None = None,
+    update_memory: bool = True,
+    max_step: float | None = None,
+    generator: torch.Generator | None = None,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """``learn_sample_weights`` without its argument checks and with the losses as 0-d tensors: what SGFD_SAC
+    runs at every step, with no host read (its inputs are checked where they enter).
+
+    :param update_memory: move ``memory`` towards this batch afterwards (False: only read it)
+    :return: weights (n,), the loss at uniform weights and at the weights (this batch alone, same RFF draw)
+    """
+    n, d = z.shape
+
     dtype = torch.float64 if z.dtype == torch.float64 else torch.float32
     z = z.detach().to(dtype)
     if feature_std is not None:
         # Constant features become 0 and so drop out of the loss.
         z = feature_std * (z - z.mean(dim=0)) / z.std(dim=0).clamp_min(1e-8)
-    remembered = memory is not None and memory.features is not None and memory.features.shape == z.shape
+    remembered = memory is not None and memory.remembers(z)
     every_z = torch.cat([z, memory.features.to(z)]) if remembered else z  # type: ignore[union-attr]
     features = _fourier_features(every_z, n_rff, generator) if use_rff else every_z.unsqueeze(-1)
     m = features.shape[2]
     features = features.reshape(len(every_z), d * m)
-    probs = torch.full((d,), 1.0 / d) if feature_probs is None else feature_probs.detach()
+    probs = z.new_full((d,), 1.0 / d) if feature_probs is None else feature_probs.detach()
 
     fixed_logits = memory.logits.to(z) if remembered else None  # type: ignore[union-attr]
 
@@ -376,19 +435,15 @@ def learn_sample_weights(
             change = lr * velocity
             theta = theta - change * (max_step / change.abs().max()).clamp(max=1.0)
     weights = n * torch.softmax(theta, dim=0)
-    if not torch.isfinite(weights).all():
-        raise RuntimeError("learn_sample_weights produced non-finite weights; lower lr")
-    if memory is not None:
+    if memory is not None and update_memory:
         memory.update(z, theta)
-    if not return_losses:
-        return weights
     # The losses of this batch alone (without the memory), on the same draw.
     own_features = features[:n]
     if fixed_logits is None:
         loss_before = loss_start
     else:
         loss_before = _decorrelation_loss(own_features, torch.ones_like(weights), pair_weights, covariance)
-    return weights, loss_before.item(), _decorrelation_loss(own_features, weights, pair_weights, covariance).item()
+    return weights, loss_before, _decorrelation_loss(own_features, weights, pair_weights, covariance)
 
 
 def effective_sample_size(weights: Tensor) -> float:

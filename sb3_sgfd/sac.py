@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterator
 from typing import Any
 
 import torch as th
@@ -13,15 +12,15 @@ from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_sgfd.buffers import DomainReplayBuffer, DomainReplayBufferSamples
-from sb3_sgfd.encoder_sac import EncoderSAC, check_positive_int
-from sb3_sgfd.reweighting import WeightMemory, check_max_step, learn_sample_weights
-from sb3_sgfd.saliency import (
-    DomainClassifier,
-    classifier_accuracy,
-    feature_probabilities,
-    scored_feature_probabilities,
-    train_classifier,
-)
+from sb3_sgfd.encoder_sac import EncoderSAC
+from sb3_sgfd.reweighting import WeightMemory, check_max_step
+from sb3_sgfd.validation import check_non_negative_int, check_positive_int
+from sb3_sgfd.weighting import SampleWeighting, Step
+from sb3_sgfd.weighting_official import OfficialWeighting
+from sb3_sgfd.weighting_paper import PaperWeighting
+
+#: SGFD's readings (``SGFD_SAC(reading=...)``): the paper's text, and what the authors' code computes.
+READINGS: dict[str, type[SampleWeighting]] = {"paper": PaperWeighting, "official": OfficialWeighting}
 
 _SINGLE_DOMAIN_WARNING = (
     "SGFD_SAC sees a single domain, so there is nothing to decorrelate; it trains as plain SAC. Give it "
@@ -35,45 +34,58 @@ class SGFD_SAC(EncoderSAC):
 
     At every gradient step the batch's encoder features z get sample weights w (mean 1, detached)
     that decorrelate the features a domain classifier finds changing across environments from the
-    other features (random Fourier features, paper eqs. 3-6); w multiplies the per-sample critic and
-    actor losses (eq. 7). The domain classifier trains on (z, domain label) once
-    ``num_timesteps >= classifier_start``, while its accuracy is below ``accuracy_threshold``
-    (Algorithm 1); until it first reaches the threshold, w = 1 and this is SAC.
+    other features (random Fourier features, paper eqs. 3-7); w multiplies the per-sample critic and/or
+    actor losses. How the weights are computed is one of two readings (``reading``), each a
+    :class:`sb3_sgfd.weighting.SampleWeighting`:
+
+    - ``"paper"`` (:class:`sb3_sgfd.weighting_paper.PaperWeighting`): Algorithm 1 as printed, with this
+      package's measured choices; the classifier trains from ``classifier_start`` while its accuracy is below
+      ``accuracy_threshold``, and the weights start the first time it reaches it (until then this is SAC);
+    - ``"official"`` (:class:`sb3_sgfd.weighting_official.OfficialWeighting`): what the authors' code computes,
+      which produced the published numbers: weights on the actor loss only from the first update, a memory of
+      past batches, guided-backprop saliency, and an objective that keeps the weights close to uniform.
+
+    The arguments below marked *reading* default to ``None``: the reading's value (``READINGS[reading].defaults``;
+    paper / official given as p / o), each overridable.
 
     The weights combine with any encoder objective of :class:`sb3_sgfd.encoder_sac.EncoderSAC`:
     ``representation="ambs"`` (with ``policy="AMBSPolicy"``, two augmented views, ``encoder_tau=0.05``,
     ``max_grad_norm=40``) is the paper's agent, AMBS plus the reweighting (appendix B); without one the encoder
     learns from the critic loss alone.
 
-    Defaults follow the paper's Tables 3-4. Takes the arguments of :class:`EncoderSAC` (SB3's SAC's, the
-    encoder's and the objective's), plus:
+    Takes the arguments of :class:`EncoderSAC` (SB3's SAC's, the encoder's and the objective's), plus:
 
+    :param reading: ``"paper"`` or ``"official"``
     :param n_domains: Number of domain labels; ``None``: the envs' ``n_domains`` attribute or, if they have
         none, the number of sub-envs
     :param classifier_start: Env steps before the domain classifier starts training
-    :param classifier_iters: Most classifier updates per classifier round: the first on this batch's features
-        (already computed for the weights), the others on fresh replay batches (Algorithm 1: 10, every step)
-    :param classifier_interval: A classifier round every this many gradient steps (official code: every 20)
-    :param accuracy_threshold: Classifier accuracy at which its training pauses and reweighting starts
+    :param classifier_iters: *reading* (p 1, o 10) Classifier updates per classifier round (paper: at most, the
+        first on this batch's features, the others on fresh replay batches, Algorithm 1's 10; official: steps on
+        fresh batches of 5 x ``batch_size``)
+    :param classifier_interval: *reading* (p 1, o 4) A classifier round every this many gradient steps
+    :param accuracy_threshold: *reading* (p 0.9, o 0.8) Classifier accuracy below which it trains (paper: and at
+        which reweighting starts)
     :param classifier_hidden_dim: Width of the classifier's two hidden layers
-    :param classifier_lr: Adam learning rate of the classifier
-    :param n_rff: Random Fourier features per latent feature
-    :param reweight_iters: SGD iterations of the weight solver per batch
-    :param reweight_lr: Learning rate of the weight solver (paper: 1e-2 on an unnormalised loss, where the
-        weights barely move; ours normalises the loss, see :func:`sb3_sgfd.reweighting.learn_sample_weights`)
+    :param classifier_lr: *reading* (p 1e-3 Adam, o 0.01 SGD) Learning rate of the classifier
+    :param n_rff: Random Fourier functions per latent feature
+    :param reweight_iters: *reading* (p 10, o 20) Steps of the weight solver per batch
+    :param reweight_lr: *reading* (p 5, o 1 then 0.1) Learning rate of the weight solver (the paper's table
+        prints 1e-2, its classifier's; see :func:`sb3_sgfd.reweighting.learn_sample_weights`)
     :param reweight_momentum: Momentum of the weight solver
-    :param reweight_weight_decay: Weight decay of the weight solver
-    :param reweight_ess_penalty: Penalty on n / ESS - 1 that keeps the weights from collapsing on few samples
-    :param reweight_memory: Momentum of a memory of past batches the solver also decorrelates against (the
-        official code's 0.9, see :class:`sb3_sgfd.reweighting.WeightMemory`); None: this batch only
+    :param reweight_weight_decay: *reading* (p 1e-4, o 0) Weight decay of the weight solver
+    :param reweight_ess_penalty: *reading* (p 0.35, o 5) How strongly the weights are kept near uniform: the
+        strength knob (paper: penalty on n / ESS - 1; official: weight of log sum w^2). Higher is weaker
+    :param reweight_memory: *reading* (p off, o 0.9) Momentum of a memory of past batches the solver also
+        decorrelates against (see :class:`sb3_sgfd.reweighting.WeightMemory`); ``False``: no memory
     :param reweight_max_step: Largest change of any weight logit in one solver step, a trust region (see
-        :func:`sb3_sgfd.reweighting.learn_sample_weights`); None: unbounded, as in the paper
-    :param saliency_temperature: Temperature of the softmax over max-normalised saliency giving p(Z_i)
-    :param saliency_smoothing: Weight of the uniform distribution mixed into p(Z_i) (see
+        :func:`sb3_sgfd.reweighting.learn_sample_weights`); None: unbounded, as in the paper and the code
+    :param saliency_temperature: *reading* (p 0.1 of the max-normalised saliency, o 1 of the raw one) Softmax
+        temperature giving p(Z_i)
+    :param saliency_smoothing: *reading* (p 0.3, o 0) Weight of the uniform distribution mixed into p(Z_i) (see
         :func:`sb3_sgfd.saliency.feature_probabilities`)
     :param use_rff: Decorrelate random Fourier features (False: the features themselves, linear only)
     :param use_saliency: Weight feature pairs by the classifier's saliency (False: uniform, global decorrelation)
-    :param reweight_critic: Apply the weights to the critic loss
+    :param reweight_critic: *reading* (p True, o False) Apply the weights to the critic loss
     :param reweight_actor: Apply the weights to the actor loss
     """
 
@@ -114,74 +126,94 @@ class SGFD_SAC(EncoderSAC):
         ent_coef_beta: float = 0.9,
         representation: str | None = None,
         representation_kwargs: dict[str, Any] | None = None,
+        reading: str = "paper",
         n_domains: int | None = None,
         classifier_start: int = 100_000,
-        classifier_iters: int = 1,
-        classifier_interval: int = 1,
-        accuracy_threshold: float = 0.9,
+        classifier_iters: int | None = None,
+        classifier_interval: int | None = None,
+        accuracy_threshold: float | None = None,
         classifier_hidden_dim: int = 128,
-        classifier_lr: float = 1e-3,
+        classifier_lr: float | None = None,
         n_rff: int = 5,
-        reweight_iters: int = 10,
-        reweight_lr: float = 5.0,
+        reweight_iters: int | None = None,
+        reweight_lr: float | None = None,
         reweight_momentum: float = 0.9,
-        reweight_weight_decay: float = 1e-4,
-        reweight_ess_penalty: float = 0.35,
-        reweight_memory: float | None = None,
+        reweight_weight_decay: float | None = None,
+        reweight_ess_penalty: float | None = None,
+        reweight_memory: float | bool | None = None,
         reweight_max_step: float | None = None,
-        saliency_temperature: float = 0.1,
-        saliency_smoothing: float = 0.3,
+        saliency_temperature: float | None = None,
+        saliency_smoothing: float | None = None,
         use_rff: bool = True,
         use_saliency: bool = True,
-        reweight_critic: bool = True,
+        reweight_critic: bool | None = None,
         reweight_actor: bool = True,
         _init_setup_model: bool = True,
     ):
+        if reading not in READINGS:
+            raise ValueError(f"reading must be one of {sorted(READINGS)}, got {reading!r}")
+        given = {
+            "classifier_iters": classifier_iters,
+            "classifier_interval": classifier_interval,
+            "accuracy_threshold": accuracy_threshold,
+            "classifier_lr": classifier_lr,
+            "reweight_iters": reweight_iters,
+            "reweight_lr": reweight_lr,
+            "reweight_weight_decay": reweight_weight_decay,
+            "reweight_ess_penalty": reweight_ess_penalty,
+            "reweight_memory": reweight_memory,
+            "saliency_temperature": saliency_temperature,
+            "saliency_smoothing": saliency_smoothing,
+            "reweight_critic": reweight_critic,
+        }
+        settings = {name: READINGS[reading].defaults[name] if value is None else value for name, value in given.items()}
+        if settings["reweight_memory"] is False:
+            settings["reweight_memory"] = None
         check_positive_int(
-            classifier_hidden_dim=classifier_hidden_dim, n_rff=n_rff, classifier_interval=classifier_interval
+            classifier_hidden_dim=classifier_hidden_dim,
+            n_rff=n_rff,
+            classifier_interval=settings["classifier_interval"],
         )
-        if classifier_start < 0 or classifier_iters < 0 or reweight_iters < 0:
-            raise ValueError(
-                "classifier_start, classifier_iters and reweight_iters must be >= 0, got "
-                f"{classifier_start}, {classifier_iters}, {reweight_iters}"
-            )
-        if not 0.0 < accuracy_threshold <= 1.0:
-            raise ValueError(f"accuracy_threshold must be in (0, 1], got {accuracy_threshold}")
+        check_non_negative_int(
+            classifier_start=classifier_start,
+            classifier_iters=settings["classifier_iters"],
+            reweight_iters=settings["reweight_iters"],
+        )
+        if not 0.0 < settings["accuracy_threshold"] <= 1.0:
+            raise ValueError(f"accuracy_threshold must be in (0, 1], got {settings['accuracy_threshold']}")
         if replay_buffer_class is None or not issubclass(replay_buffer_class, DomainReplayBuffer):
             raise ValueError(
                 "replay_buffer_class must be DomainReplayBuffer or a subclass (SGFD needs the domain "
                 f"label of every transition), got {replay_buffer_class}"
             )
-        if reweight_memory is not None:
-            WeightMemory(reweight_memory)  # checks it
+        if settings["reweight_memory"] is not None:
+            WeightMemory(settings["reweight_memory"])  # checks it
         check_max_step(reweight_max_step, "reweight_max_step")
+        self.reading = reading
         self.n_domains = n_domains
         self.classifier_start = classifier_start
-        self.classifier_iters = classifier_iters
-        self.classifier_interval = classifier_interval
-        self.accuracy_threshold = accuracy_threshold
         self.classifier_hidden_dim = classifier_hidden_dim
-        self.classifier_lr = classifier_lr
         self.n_rff = n_rff
-        self.reweight_iters = reweight_iters
-        self.reweight_lr = reweight_lr
         self.reweight_momentum = reweight_momentum
-        self.reweight_weight_decay = reweight_weight_decay
-        self.reweight_ess_penalty = reweight_ess_penalty
-        self.reweight_memory = reweight_memory
         self.reweight_max_step = reweight_max_step
-        self.saliency_temperature = saliency_temperature
-        self.saliency_smoothing = saliency_smoothing
         self.use_rff = use_rff
         self.use_saliency = use_saliency
-        self.reweight_critic = reweight_critic
         self.reweight_actor = reweight_actor
-        # Sticky: weights are learned from the first time the classifier reaches the threshold on.
-        self.classifier_ready = False
+        self.classifier_iters: int = settings["classifier_iters"]
+        self.classifier_interval: int = settings["classifier_interval"]
+        self.accuracy_threshold: float = settings["accuracy_threshold"]
+        self.classifier_lr: float = settings["classifier_lr"]
+        self.reweight_iters: int = settings["reweight_iters"]
+        self.reweight_lr: float = settings["reweight_lr"]
+        self.reweight_weight_decay: float = settings["reweight_weight_decay"]
+        self.reweight_ess_penalty: float = settings["reweight_ess_penalty"]
+        self.reweight_memory: float | None = settings["reweight_memory"]
+        self.saliency_temperature: float = settings["saliency_temperature"]
+        self.saliency_smoothing: float = settings["saliency_smoothing"]
+        self.reweight_critic: bool = settings["reweight_critic"]
         self.single_domain = False
         self._domains_checked = False
         self.rff_seed: int | None = None
-        self.weight_memory: WeightMemory | None = None
         super().__init__(
             policy,
             env,
@@ -230,21 +262,42 @@ class SGFD_SAC(EncoderSAC):
         if self.n_domains == 1 and not self.single_domain:
             warnings.warn(_SINGLE_DOMAIN_WARNING, stacklevel=2)
             self.single_domain = True
-        n_features = self.critic.features_extractor.features_dim
-        # A forked RNG: SGFD's additions must not shift the random streams SAC draws from, so that with
-        # w = 1 this is SAC to the last bit under the same seed.
-        with th.random.fork_rng(devices=[]):
-            self.classifier = DomainClassifier(n_features, max(self.n_domains, 2), self.classifier_hidden_dim)
-        self.classifier.to(self.device)
-        # Fused: one kernel for all six parameters instead of a dozen small ops each (a fifth of a classifier step).
-        self.classifier_optimizer = th.optim.Adam(self.classifier.parameters(), lr=self.classifier_lr, fused=True)
         # The RFF draw of update k is seeded from (rff_seed, k): reproducible, and the seed is all that
         # a checkpoint needs to continue the same sequence.
         if self.rff_seed is None:
             self.rff_seed = self._derived_seeds()["reweighting"]
-        self._rff_generator = th.Generator(device=self.device)
-        if self.reweight_memory is not None and self.weight_memory is None:
-            self.weight_memory = WeightMemory(self.reweight_memory)
+        # A forked RNG: SGFD's additions must not shift the random streams SAC draws from, so that with
+        # w = 1 this is SAC to the last bit under the same seed.
+        with th.random.fork_rng(devices=[]):
+            self.weighting = READINGS[self.reading](
+                self.critic.features_extractor.features_dim,
+                self.n_domains,
+                classifier_start=self.classifier_start,
+                classifier_iters=self.classifier_iters,
+                classifier_interval=self.classifier_interval,
+                accuracy_threshold=self.accuracy_threshold,
+                classifier_hidden_dim=self.classifier_hidden_dim,
+                classifier_lr=self.classifier_lr,
+                n_rff=self.n_rff,
+                reweight_iters=self.reweight_iters,
+                reweight_lr=self.reweight_lr,
+                reweight_momentum=self.reweight_momentum,
+                reweight_weight_decay=self.reweight_weight_decay,
+                reweight_ess_penalty=self.reweight_ess_penalty,
+                reweight_memory=self.reweight_memory,
+                reweight_max_step=self.reweight_max_step,
+                saliency_temperature=self.saliency_temperature,
+                saliency_smoothing=self.saliency_smoothing,
+                use_rff=self.use_rff,
+                use_saliency=self.use_saliency,
+                seed=self.rff_seed,
+                device=self.device,
+            )
+
+    @property
+    def classifier(self) -> th.nn.Module:
+        """The weighting's domain classifier."""
+        return self.weighting.classifier
 
     def _batch_weights(
         self,
@@ -255,103 +308,47 @@ class SGFD_SAC(EncoderSAC):
         update_actor: bool,
     ) -> tuple[th.Tensor | None, th.Tensor | None]:
         """
-        Algorithm 1, lines 6-17: train the domain classifier while it is below the accuracy threshold,
-        then learn weights that decorrelate the batch's features. Returns the (n, 1) weights, mean 1, of the
-        critic and of the actor (None where that loss is not reweighted, or before the classifier is ready;
-        weights for the actor alone are not computed on the steps it does not learn).
-
-        Once the classifier is ready, one pass of it scores the batch and gives the saliency p(Z_i); if the
-        score is below the threshold the classifier then takes its step, and the weights use the p(Z_i) of
-        that pass (Algorithm 1 would take p after the step: one Adam step apart, for one classifier pass less).
+        The reading's weights of this batch (:class:`sb3_sgfd.weighting.SampleWeighting`), as (n, 1) weights of
+        the critic and of the actor (None where that loss is not reweighted or the reading gives none; weights
+        for the actor alone are not computed on the steps it does not learn).
         """
-        if self.num_timesteps < self.classifier_start or self.single_domain:
+        if self.single_domain or not self.weighting.active(self.num_timesteps):
             return None, None
-        if not self.classifier_ready and not self._domains_checked:
-            # Once, when the classifier starts: stored_domains() reads the whole buffer.
+        if not self._domains_checked:
+            # Once, when the weighting starts: stored_domains() reads the whole buffer.
             self._domains_checked = True
             if len(self.replay_buffer.stored_domains()) < 2:  # type: ignore[union-attr]
                 warnings.warn(_SINGLE_DOMAIN_WARNING, stacklevel=2)
                 self.single_domain = True
                 return None, None
-
-        domains = self._checked_domains(replay_data.domains)
         weights_wanted = self.reweight_critic or (self.reweight_actor and update_actor)
-        feature_probs, accuracy = None, None
-        if self.classifier_ready and weights_wanted and self.use_saliency:
-            feature_probs, accuracy = scored_feature_probabilities(
-                self.classifier, z, domains, temperature=self.saliency_temperature, smoothing=self.saliency_smoothing
-            )
-        classifier_round = self.classifier_iters > 0 and update_index % self.classifier_interval == 0
-        if classifier_round and (accuracy is None or accuracy < self.accuracy_threshold):
-            batches = self._classifier_batches(z, domains, batch_size)
-            accuracy, _ = train_classifier(self.classifier, self.classifier_optimizer, batches, self.accuracy_threshold)
-        elif accuracy is None:
-            accuracy = classifier_accuracy(self.classifier, z, domains)
-        self.classifier_ready = self.classifier_ready or accuracy >= self.accuracy_threshold
-        self.record("sgfd/classifier_accuracy", accuracy)
-        if not self.classifier_ready or not weights_wanted:
+        step = Step(update_index, self.num_timesteps, weights_wanted, self._fresh_features)
+        weights, figures = self.weighting(z, self._checked_domains(replay_data.domains), step)
+        for key, value in figures.items():
+            self.record(f"sgfd/{key}", value)
+        if weights is None:
             return None, None
-
-        self._rff_generator.manual_seed(self.rff_seed + update_index)
-        weights, loss_before, loss_after = self.sample_weights(z, self._rff_generator, True, feature_probs)
-        # Kish's effective sample size over n, as a tensor: figures stay on the device until train() logs them.
-        self.record("sgfd/weight_ess", weights.sum().square() / weights.square().sum() / len(weights))
-        self.record("sgfd/weight_min", weights.min())
-        self.record("sgfd/weight_max", weights.max())
-        self.record("sgfd/decorrelation_loss_before", loss_before)
-        self.record("sgfd/decorrelation_loss_after", loss_after)
         weights = weights.reshape(-1, 1)
         return (weights if self.reweight_critic else None), (weights if self.reweight_actor else None)
 
     def sample_weights(
-        self,
-        z: th.Tensor,
-        generator: th.Generator | None = None,
-        record: bool = False,
-        feature_probs: th.Tensor | None = None,
-    ) -> tuple[th.Tensor, float, float]:
-        """
-        Algorithm 1, lines 12-17 for features ``z``: the classifier's feature probabilities (uniform in the
-        no-saliency ablation), then the weights that minimise the weighted decorrelation loss.
+        self, z: th.Tensor, generator: th.Generator | None = None
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """The reading's weights of features ``z`` with the classifier as it is now, leaving the weighting's
+        state (memory, classifier) as it is: for figures and benchmarks.
 
         :param z: (n, d) encoder features
         :param generator: seeds the random Fourier features
-        :param record: log the most salient feature (and update the memory of past batches, if any)
-        :param feature_probs: p(Z_i) if already computed for ``z``; None: from the classifier here
         :return: weights (n,) with mean 1, the decorrelation loss at uniform weights and at the weights
         """
-        if not self.use_saliency:
-            feature_probs = None
-        elif feature_probs is None:
-            feature_probs = feature_probabilities(
-                self.classifier, z, temperature=self.saliency_temperature, smoothing=self.saliency_smoothing
-            )
-        if feature_probs is not None and record:
-            self.record("sgfd/top_saliency_feature", feature_probs.argmax())
-        return learn_sample_weights(
-            z,
-            feature_probs,
-            n_rff=self.n_rff,
-            iters=self.reweight_iters,
-            lr=self.reweight_lr,
-            momentum=self.reweight_momentum,
-            weight_decay=self.reweight_weight_decay,
-            ess_penalty=self.reweight_ess_penalty,
-            use_rff=self.use_rff,
-            memory=self.weight_memory if record else None,
-            max_step=self.reweight_max_step,
-            generator=generator,
-            return_losses=True,
-        )
+        return self.weighting.solve(z, generator)
 
-    def _classifier_batches(
-        self, z: th.Tensor, domains: th.Tensor, batch_size: int
-    ) -> Iterator[tuple[th.Tensor, th.Tensor]]:
-        """This batch's features, then fresh replay batches: ``classifier_iters`` batches in all."""
-        yield z, domains
-        for _ in range(self.classifier_iters - 1):
-            batch = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            yield self.encode(self.augment(batch.observations)[0]), self._checked_domains(batch.domains)
+    def _fresh_features(self, n_samples: int, augmented: bool) -> tuple[th.Tensor, th.Tensor]:
+        """A fresh replay batch of ``n_samples``, encoded (of its first augmented view with ``augmented``), and
+        its domain labels: the classifier's extra batches."""
+        batch = self.replay_buffer.sample(n_samples, env=self._vec_normalize_env)  # type: ignore[union-attr]
+        observations = self.augment(batch.observations)[0] if augmented else batch.observations
+        return self.encode(observations), self._checked_domains(batch.domains)
 
     def _checked_domains(self, domains: th.Tensor | None) -> th.Tensor:
         if domains is None:
@@ -364,11 +361,11 @@ class SGFD_SAC(EncoderSAC):
         return domains
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "classifier", "classifier_optimizer", "_rff_generator"]
+        return [*super()._excluded_save_params(), "weighting"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, saved_pytorch_variables = super()._get_torch_save_params()
-        return [*state_dicts, "classifier", "classifier_optimizer"], saved_pytorch_variables
+        return [*state_dicts, "weighting", "weighting.classifier_optimizer"], saved_pytorch_variables
 
 
 def _infer_n_domains(env: Any) -> int:

@@ -10,14 +10,15 @@ from torch import Tensor, nn
 from torch.nn import functional as F
 
 
-def _check_features(z: Tensor, name: str = "z") -> None:
+def _check_features(z: Tensor, name: str = "z", finite: bool = True) -> None:
+    """Shape and dtype of features; with ``finite``, their values too (a host read: not on SGFD's step)."""
     if not isinstance(z, Tensor):
         raise TypeError(f"{name} must be a torch.Tensor, got {type(z).__name__}")
     if z.dim() != 2 or z.shape[0] < 1 or z.shape[1] < 1:
         raise ValueError(f"{name} must have shape (n, d) with n >= 1 and d >= 1, got {tuple(z.shape)}")
     if not z.is_floating_point():
         raise TypeError(f"{name} must be a floating-point tensor, got {z.dtype}")
-    if not torch.isfinite(z).all():
+    if finite and not torch.isfinite(z).all():
         raise ValueError(f"{name} contains NaN or inf values")
 
 
@@ -168,9 +169,10 @@ def scored_feature_probabilities(
     temperature: float = 0.1,
     normalize: bool = True,
     smoothing: float = 0.3,
-) -> tuple[Tensor, float]:
+) -> tuple[Tensor, Tensor]:
     """``feature_probabilities`` (on each sample's predicted domain) and ``classifier_accuracy`` on ``domains``,
-    from one pass of the classifier: all SGFD needs of it on a step that learns weights.
+    from one pass of the classifier: all SGFD needs of it on a step that learns weights. No host read: the
+    features' values are checked where they enter (the replay buffer), the accuracy is a 0-d tensor.
 
     :param classifier: the domain classifier
     :param z: features (n, d)
@@ -178,7 +180,7 @@ def scored_feature_probabilities(
     :return: p(Z_i) (d,) without grad, and the fraction of samples whose domain is predicted right
     """
     _check_probability_settings(temperature, smoothing)
-    _check_features(z)
+    _check_features(z, finite=False)
     _check_domains(domains, z.shape[0])
     predicted, gradient = classifier.predictions_and_input_gradient(z.detach())
     accuracy = _accuracy(predicted, domains)
@@ -196,8 +198,6 @@ def _check_probability_settings(temperature: float, smoothing: float) -> None:
 
 def _probabilities(m: Tensor, temperature: float, normalize: bool, smoothing: float) -> Tensor:
     """p(Z_i) from the saliency M (d,), as ``feature_probabilities`` describes."""
-    if not torch.isfinite(m).all():
-        raise ValueError("the classifier's saliency is not finite; check the classifier for NaN weights")
     if normalize:
         m = m / m.max().clamp_min(torch.finfo(m.dtype).tiny)
     probs = torch.softmax(m / temperature, dim=0)
@@ -209,24 +209,25 @@ def train_classifier(
     optimizer: torch.optim.Optimizer,
     batches: Iterable[tuple[Tensor, Tensor]],
     stop_accuracy: float | None = None,
-) -> tuple[float, int]:
+) -> tuple[Tensor, int]:
     """The domain classifier's training loop (Algorithm 1, lines 7-13): each batch is scored first, and the
     loop stops at the first one classified with accuracy >= ``stop_accuracy``; otherwise one cross-entropy
-    step on it. Scoring before the step makes the accuracy a held-out estimate.
+    step on it. Scoring before the step makes the accuracy a held-out estimate. Deciding whether to stop is a
+    host read per batch; with ``stop_accuracy=None`` there is none.
 
     :param classifier: domain classifier, (n, d) -> (n, K) logits
     :param optimizer: optimiser of the classifier's parameters
     :param batches: (features (n, d), domain labels (n,)) pairs, e.g. detached encoder features
     :param stop_accuracy: accuracy that ends training; None trains on every batch
-    :return: the accuracy of the last batch scored (0.0 if there was none) and the number of steps taken
+    :return: the accuracy of the last batch scored (a 0-d tensor; 0 if there was none) and the steps taken
     """
-    accuracy, steps = 0.0, 0
+    accuracy, steps = torch.zeros(()), 0
     for z, domains in batches:
-        _check_features(z)
+        _check_features(z, finite=False)
         _check_domains(domains, z.shape[0])
         logits = classifier(z)  # one forward pass scores the batch and, below the threshold, trains on it
         accuracy = _accuracy(logits.detach().argmax(dim=1), domains)
-        if stop_accuracy is not None and accuracy >= stop_accuracy:
+        if stop_accuracy is not None and bool(accuracy >= stop_accuracy):
             break
         loss = F.cross_entropy(logits, domains)
         optimizer.zero_grad()
@@ -247,9 +248,9 @@ def classifier_accuracy(classifier: nn.Module, z: Tensor, domains: Tensor) -> fl
     _check_domains(domains, z.shape[0])
     with torch.no_grad():
         predicted = classifier(z).argmax(dim=1)
-    return _accuracy(predicted, domains)
+    return _accuracy(predicted, domains).item()
 
 
-def _accuracy(predicted: Tensor, domains: Tensor) -> float:
-    """Fraction of the predicted domains (n,) that are the true ones (n,)."""
-    return (predicted == domains.to(predicted.device)).float().mean().item()
+def _accuracy(predicted: Tensor, domains: Tensor) -> Tensor:
+    """Fraction of the predicted domains (n,) that are the true ones (n,), as a 0-d tensor on their device."""
+    return (predicted == domains.to(predicted.device)).float().mean()

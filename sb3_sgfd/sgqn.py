@@ -19,7 +19,8 @@ from sb3_sgfd.attribution import (
     overlay,
 )
 from sb3_sgfd.encoder_sac import EncoderSAC, image_shape
-from sb3_sgfd.representation import Batch, Representation, check_non_negative, register, step
+from sb3_sgfd.representation import Batch, Representation, register, step
+from sb3_sgfd.validation import check_non_negative
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
 

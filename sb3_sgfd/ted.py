@@ -7,8 +7,9 @@ from typing import Any, ClassVar
 import torch as th
 
 from sb3_sgfd.encoder_sac import EncoderSAC
-from sb3_sgfd.representation import Batch, Representation, check_non_negative, register, step
+from sb3_sgfd.representation import Batch, Representation, register, step
 from sb3_sgfd.temporal import TEDClassifier, ted_loss
+from sb3_sgfd.validation import check_non_negative
 
 
 @register("ted")

@@ -237,7 +237,7 @@ def sgfd_weights(model: Any, observations: np.ndarray, domains: np.ndarray, seed
     return {
         "weights": weights.cpu().numpy(),
         "classifier_accuracy": classifier_accuracy(model.classifier, z, labels),
-        "classifier_ready": bool(model.classifier_ready),
+        "classifier_ready": bool(model.weighting.ready),
         "accuracy_threshold": float(model.accuracy_threshold),
         "ess": effective_sample_size(weights) / len(weights),
     }

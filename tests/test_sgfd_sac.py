@@ -12,6 +12,7 @@ import sgfd_envs
 from sb3_sgfd import SGFD_SAC, DomainReplayBuffer, MlpPolicy
 from sb3_sgfd.reweighting import learn_sample_weights
 from sb3_sgfd.saliency import feature_probabilities
+from sb3_sgfd.weighting import SampleWeighting, Weights
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 TINY = dict(
@@ -45,27 +46,31 @@ def test_with_unit_weights_it_is_sb3_sac_exactly():
     assert th.equal(sac.log_ent_coef, sgfd.log_ent_coef)
 
 
-class ZeroWeights(SGFD_SAC):
-    """Every sample weighted 0 from the first step: a weighted loss then has zero gradient."""
+class FixedWeighting(SampleWeighting):
+    """The same weight for every sample from the first step; counts the batches and records their features."""
 
-    def _setup_model(self):
-        super()._setup_model()
-        self.classifier_ready = True
+    def __init__(self, value: float) -> None:
+        super().__init__(1, 2)
+        self.value, self.calls, self.features = value, 0, []
 
-    def sample_weights(self, z, generator=None, record=False, feature_probs=None):
-        return th.zeros(len(z)), 1.0, 0.0
+    def forward(self, z, domains, step):
+        self.calls += 1
+        self.features.append(z)
+        return Weights(th.full((len(z),), self.value) if step.weights_wanted else None, {})
+
+
+def weighted_by(model: SGFD_SAC, weighting: SampleWeighting) -> SGFD_SAC:
+    model.weighting = weighting
+    return model
 
 
 @pytest.mark.parametrize(("reweight_critic", "reweight_actor"), [(True, True), (False, True), (True, False)])
 def test_weights_multiply_the_critic_and_actor_losses(reweight_critic, reweight_actor):
-    model = ZeroWeights(
-        "MlpPolicy",
-        state_env(),
-        reweight_critic=reweight_critic,
-        reweight_actor=reweight_actor,
-        classifier_start=0,
-        **TINY,
+    # Every sample weighted 0 from the first step: a weighted loss then has zero gradient.
+    model = SGFD_SAC(
+        "MlpPolicy", state_env(), reweight_critic=reweight_critic, reweight_actor=reweight_actor, **TINY
     )
+    weighted_by(model, FixedWeighting(0.0))
     critic = [p.clone() for p in model.critic.parameters()]
     actor = [p.clone() for p in model.actor.latent_pi.parameters()]
     ent_coef = model.log_ent_coef.clone()
@@ -79,59 +84,60 @@ def test_weights_multiply_the_critic_and_actor_losses(reweight_critic, reweight_
     assert not th.equal(ent_coef, model.log_ent_coef)
 
 
-class CountedWeights(ZeroWeights):
-    """Unit weights from the first step, counting the batches they were computed for."""
-
-    calls = 0
-
-    def sample_weights(self, z, generator=None, record=False, feature_probs=None):
-        self.calls += 1
-        return th.ones(len(z)), 1.0, 1.0
-
-
 @pytest.mark.parametrize(("reweight_critic", "expected"), [(True, 1.0), (False, 0.5)])
 def test_weights_for_the_actor_alone_are_computed_only_on_the_steps_it_learns(reweight_critic, expected):
-    model = CountedWeights(
-        "MlpPolicy", state_env(), reweight_critic=reweight_critic, actor_update_interval=2, classifier_start=0, **TINY
-    )
+    model = SGFD_SAC("MlpPolicy", state_env(), reweight_critic=reweight_critic, actor_update_interval=2, **TINY)
+    weighting = weighted_by(model, FixedWeighting(1.0)).weighting
     model.learn(400)
     assert model._n_updates >= 50
-    assert model.calls == math.ceil(expected * model._n_updates)
+    wanted = [step for step in range(model._n_updates) if reweight_critic or step % 2 == 0]
+    assert weighting.calls == model._n_updates and len(wanted) == math.ceil(expected * model._n_updates)
 
 
-class EncoderChecked(SGFD_SAC):
-    """Records, at each weight computation, whether z is the batch's encoding by the critic's current encoder."""
+class EncodingForbidden(SGFD_SAC):
+    """Records the replay batches; encoding a batch again during a step is an error."""
 
     def _setup_model(self):
         super()._setup_model()
-        self.classifier_ready = True
-        self.matches, self.batches = [], []
+        self.batches = []
         sample = self.replay_buffer.sample
         self.replay_buffer.sample = lambda *args, **kwargs: (
             self.batches.append(sample(*args, **kwargs)) or self.batches[-1]
         )
 
-    def sample_weights(self, z, generator=None, record=False, feature_probs=None):
-        self.matches.append(th.equal(z, super().encode(self.batches[-1].observations)))
-        return super().sample_weights(z, generator, record, feature_probs)
-
     def encode(self, observations):
         raise AssertionError("the step encoded a batch again instead of reusing the critic's features")
 
 
+class EncodingChecked(FixedWeighting):
+    """Records, at each call, whether z is the critic's current encoding of the batch just sampled."""
+
+    def __init__(self, model: EncodingForbidden) -> None:
+        super().__init__(1.0)
+        self.model, self.matches = model, []
+
+    def forward(self, z, domains, step):
+        critic = self.model.critic
+        with th.no_grad():
+            expected = critic.extract_features(self.model.batches[-1].observations, critic.features_extractor)
+        self.matches.append(th.equal(z, expected) and not z.requires_grad)
+        return super().forward(z, domains, step)
+
+
 def test_the_weights_reuse_the_critics_features_of_the_batch():
     # A learned encoder (MlpEncoder), so that its features are not the observations themselves.
-    model = EncoderChecked("EncoderMlpPolicy", state_env(), classifier_start=0, **TINY)
+    model = EncodingForbidden("EncoderMlpPolicy", state_env(), **TINY)
+    weighting = weighted_by(model, EncodingChecked(model)).weighting
     model.learn(200)
-    assert len(model.matches) == model._n_updates > 0
-    assert all(model.matches)
+    assert weighting.calls == model._n_updates == len(model.batches) > 0
+    assert all(weighting.matches)
 
 
 def test_learns_on_the_training_domains_and_its_weights_leave_one():
     model = reweighting_model()
     model.learn(600)
     stats = {key.removeprefix("sgfd/"): values for key, values in model._stats.items()}
-    assert model.classifier_ready
+    assert model.weighting.ready
     assert model.n_domains == 4
     assert stats["weight_min"][-1] < 1.0 < stats["weight_max"][-1]
     assert 0.3 < stats["weight_ess"][-1] < 1.0
@@ -151,8 +157,9 @@ def test_by_default_the_classifier_trains_on_the_batch_features_every_classifier
     sample = model.replay_buffer.sample
     model.replay_buffer.sample = lambda *args, **kwargs: samples.append(1) or sample(*args, **kwargs)
     steps = []
-    optimizer_step = model.classifier_optimizer.step
-    model.classifier_optimizer.step = lambda *args, **kwargs: steps.append(1) or optimizer_step(*args, **kwargs)
+    optimizer = model.weighting.classifier_optimizer
+    optimizer_step = optimizer.step
+    optimizer.step = lambda *args, **kwargs: steps.append(1) or optimizer_step(*args, **kwargs)
     model.learn(600)
     # one replay batch per gradient step (the SAC update's), a classifier step on every third
     updates_after_start = model._n_updates - (200 - TINY["learning_starts"]) // 4
@@ -162,12 +169,10 @@ def test_by_default_the_classifier_trains_on_the_batch_features_every_classifier
 
 def test_sample_weights_follow_the_saliency_settings():
     # Full smoothing mixes the saliency away: the weights must then be the no-saliency ablation's.
-    model = reweighting_model(saliency_smoothing=1.0)
-    z = th.randn(64, model.critic.features_extractor.features_dim, generator=th.Generator().manual_seed(1))
+    z = th.randn(64, 25, generator=th.Generator().manual_seed(1))
 
     def weights(**settings) -> th.Tensor:
-        for name, value in settings.items():
-            setattr(model, name, value)
+        model = reweighting_model(**{"saliency_smoothing": 1.0, **settings})
         return model.sample_weights(z, th.Generator().manual_seed(2))[0]
 
     uniform = weights(use_saliency=False)
@@ -212,8 +217,8 @@ def test_save_load_keeps_classifier_and_solver_and_continues(tmp_path):
         model.classifier.state_dict().items(), loaded.classifier.state_dict().items(), strict=True
     ):
         assert th.equal(expected, got), name
-    assert loaded.classifier_optimizer.state_dict()["state"], "classifier optimizer state was not restored"
-    assert (loaded.classifier_ready, loaded.rff_seed, loaded.n_domains) == (True, model.rff_seed, 4)
+    assert loaded.weighting.classifier_optimizer.state_dict()["state"], "classifier optimizer state was not restored"
+    assert (loaded.weighting.ready, loaded.rff_seed, loaded.n_domains) == (True, model.rff_seed, 4)
     loaded.learn(300, reset_num_timesteps=False)
     assert loaded.num_timesteps == model.num_timesteps + 300
     assert "sgfd/weight_ess" in loaded._stats
@@ -225,7 +230,7 @@ def test_a_single_domain_warns_once_and_trains_as_sac():
         model = SGFD_SAC("MlpPolicy", env, classifier_start=150, **TINY)
         model.learn(300)
     assert len([w for w in record if "single domain" in str(w.message)]) == 1
-    assert model.single_domain and not model.classifier_ready
+    assert model.single_domain and not model.weighting.ready
     assert "sgfd/weight_ess" not in model._stats
 
 
