@@ -10,25 +10,29 @@ from torch.nn import functional as F
 
 from sb3_sgfd.augmentation import random_shift
 from sb3_sgfd.bisimulation import (
+    DeterministicTransitionModel,
     MetricLearner,
     ProbabilisticTransitionModel,
     RewardDecoder,
     ambs_metric_loss,
+    ambs_metric_loss_code,
     gaussian_nll,
     split_halves,
 )
 from sb3_sgfd.encoder_sac import EncoderSAC
 from sb3_sgfd.policies import AMBSEncoder
 from sb3_sgfd.representation import Batch, Representation, register, step
-from sb3_sgfd.validation import check_non_negative
+from sb3_sgfd.validation import check_choice, check_non_negative
+
+TRANSITION_MODELS = {"probabilistic": ProbabilisticTransitionModel, "deterministic": DeterministicTransitionModel}
 
 
 @register("ambs")
 class AMBSRepresentation(Representation):
     """
-    AMBS's encoder objective, after the critic's step: ``bisim_coef * ambs_metric_loss + transition_coef *
-    (transition NLL + reward MSE)``, one Adam step on the encoder (without its ratio, which the critic loss
-    trains) and one on the transition model, reward decoder and meta-learners. Needs the policy's
+    AMBS's encoder objective, after the critic's step: ``bisim_coef * metric + transition_coef * (transition
+    NLL + reward MSE)``, one Adam step on the encoder (without its ratio, which the critic loss trains) and one
+    on the transition model, reward decoder and meta-learners. Needs the policy's
     :class:`sb3_sgfd.policies.AMBSEncoder` (``policy="AMBSPolicy"``).
 
     The metric compares the unscaled features of two augmented views (the critic's two views with
@@ -37,6 +41,14 @@ class AMBSRepresentation(Representation):
     actions (on-policy, as the official code); the NLL and reward MSE use the replayed actions, on the
     dynamics half, against the detached next features.
 
+    :param metric: ``"code"``: the metric and NLL as AMBS's code computes them (the default: the published
+        numbers and the coefficients come from it; :func:`sb3_sgfd.bisimulation.ambs_metric_loss_code`, the
+        NLL's residual halved); ``"paper"``: the paper's formulas (|r_i - r_j|, the W2 norm over the dynamics
+        half, about sqrt(d) larger; :func:`sb3_sgfd.bisimulation.ambs_metric_loss`, the plain Gaussian NLL)
+    :param meta_learners: Measure the halves with AMBS's meta-learners d_r, d_d; False: with Huber and squared
+        distances (the SGFD code's committed setting; ``metric="code"`` only)
+    :param transition: ``"probabilistic"`` (AMBS) or ``"deterministic"`` (the SGFD code's committed setting)
+    :param adaptive_ratio: Let the critic loss learn the ratio c of the halves (AMBS); False: c stays 0.5
     :param bisim_coef: Weight of the metric loss (AMBS: 0.5)
     :param transition_coef: Weight of the transition NLL plus the reward MSE (AMBS: 0.01)
     :param hidden_dim: Width of the transition model and reward decoder (512)
@@ -48,6 +60,10 @@ class AMBSRepresentation(Representation):
 
     def __init__(
         self,
+        metric: str = "code",
+        meta_learners: bool = True,
+        transition: str = "probabilistic",
+        adaptive_ratio: bool = True,
         bisim_coef: float = 0.5,
         transition_coef: float = 0.01,
         hidden_dim: int = 512,
@@ -57,7 +73,13 @@ class AMBSRepresentation(Representation):
         decoder_weight_decay: float = 0.0,
     ) -> None:
         super().__init__()
+        check_choice("metric", metric, ("code", "paper"))
+        check_choice("transition", transition, TRANSITION_MODELS)
+        if not meta_learners and metric != "code":
+            raise ValueError("meta_learners=False is the code's form: it needs metric='code', got metric='paper'")
         check_non_negative(bisim_coef=bisim_coef, transition_coef=transition_coef)
+        self.metric, self.meta_learners, self.transition_kind = metric, bool(meta_learners), transition
+        self.adaptive_ratio = bool(adaptive_ratio)
         self.bisim_coef, self.transition_coef = bisim_coef, transition_coef
         self.hidden_dim, self.metric_hidden_dim = hidden_dim, metric_hidden_dim
         self.encoder_lr, self.decoder_lr, self.decoder_weight_decay = encoder_lr, decoder_lr, decoder_weight_decay
@@ -68,14 +90,20 @@ class AMBSRepresentation(Representation):
             raise ValueError(
                 f"the 'ambs' representation needs the AMBSEncoder (policy='AMBSPolicy'), got {type(encoder).__name__}"
             )
+        if not self.adaptive_ratio:
+            encoder.ratio.requires_grad_(False)
         reward_dim, dynamics_dim = encoder.reward_dim, encoder.features_dim - encoder.reward_dim
         action_dim = model.action_space.shape[0]
-        self.transition = ProbabilisticTransitionModel(dynamics_dim, action_dim, self.hidden_dim)
+        self.transition = TRANSITION_MODELS[self.transition_kind](dynamics_dim, action_dim, self.hidden_dim)
         self.reward_decoder = RewardDecoder(dynamics_dim, self.hidden_dim)
-        self.reward_learner = MetricLearner(reward_dim, self.metric_hidden_dim)
-        self.dynamics_learner = MetricLearner(dynamics_dim, self.metric_hidden_dim)
+        decoders: list[th.nn.Module] = [self.transition, self.reward_decoder]
+        self.reward_learner: MetricLearner | None = None
+        self.dynamics_learner: MetricLearner | None = None
+        if self.meta_learners:
+            self.reward_learner = MetricLearner(reward_dim, self.metric_hidden_dim)
+            self.dynamics_learner = MetricLearner(dynamics_dim, self.metric_hidden_dim)
+            decoders += [self.reward_learner, self.dynamics_learner]
         self.encoder_optimizer = th.optim.Adam(encoder.trunk.parameters(), lr=self.encoder_lr)
-        decoders = [self.transition, self.reward_decoder, self.reward_learner, self.dynamics_learner]
         self.decoder_optimizer = th.optim.Adam(
             [param for module in decoders for param in module.parameters()],
             lr=self.decoder_lr,
@@ -100,7 +128,8 @@ class AMBSRepresentation(Representation):
             h_dynamics = split_halves(h, encoder.reward_dim)[1]
             predicted = self.transition(h_dynamics, actor_actions)
         perm = th.randperm(len(h), generator=self.generator, device=self.generator.device).to(h.device)
-        metric = ambs_metric_loss(
+        metric_loss = ambs_metric_loss_code if self.metric == "code" else ambs_metric_loss
+        metric = metric_loss(
             h,
             aug_h,
             data.rewards,
@@ -114,7 +143,9 @@ class AMBSRepresentation(Representation):
         )
         dynamics = split_halves(h, encoder.reward_dim)[1]
         mu, sigma = self.transition(dynamics, data.actions)
-        nll = gaussian_nll(mu, sigma, split_halves(next_h, encoder.reward_dim)[1])
+        # AMBS's code halves the NLL's residual, ((0.5 mu - 0.5 target) / sigma)^2
+        residual_scale = 0.5 if self.metric == "code" else 1.0
+        nll = gaussian_nll(mu, sigma, split_halves(next_h, encoder.reward_dim)[1], residual_scale)
         next_sample = self.transition.sample(dynamics, data.actions, self.generator)
         reward_loss = F.mse_loss(self.reward_decoder(next_sample), data.rewards)
         loss = self.bisim_coef * metric + self.transition_coef * (nll + reward_loss)

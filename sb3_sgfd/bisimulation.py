@@ -22,6 +22,18 @@ Pure torch, no Stable-Baselines3 import. Read top to bottom next to the papers:
    over the batch pairs and augmented pairs of the official code, each term halved as there; the official
    auxiliary loss is 0.5 * this + 0.01 * (transition NLL + reward MSE).
 8. ``ambs_distance``: the learned behavioural distance c d_r + (1 - c) d_d between two representations.
+
+The authors' code computes both metrics differently from their papers, and the published numbers came from the
+code; each has its own function here, the default of the objectives (``metric="code"``):
+
+- ``bisimulation_loss_code`` (deep_bisim4control): per-dimension Huber (smooth L1) distances of z and r and a
+  per-dimension W2, the squared error averaged over every element; on the same tensors about 1000x smaller than
+  the paper's ``bisimulation_loss`` at d = 50, the scale its ``bisim_coef`` 0.5 was set for;
+- ``ambs_metric_loss_code`` (AMBS): the reward target a Huber distance of the rewards, the dynamics target W2 per
+  dimension averaged over the dimensions; without meta-learners (the SGFD code's committed setting) Huber and
+  squared distances of the halves, and with a deterministic transition model a per-dimension Huber distance of
+  the predicted means; AMBS's code also halves the transition NLL's residual (``gaussian_nll``'s
+  ``residual_scale=0.5``).
 """
 
 from __future__ import annotations
@@ -65,11 +77,11 @@ def _check_rewards(rewards: Tensor, n: int) -> Tensor:
 
 
 def _check_perm(perm: Tensor, n: int) -> None:
+    # Shape and dtype only: whether it is a permutation would be a host read on every gradient step (the
+    # objectives draw it with randperm), and any pairing of the rows is a well-defined loss.
     if not isinstance(perm, Tensor) or perm.shape != (n,) or perm.dtype not in (torch.int32, torch.int64):
         shape = f"{tuple(perm.shape)} {perm.dtype}" if isinstance(perm, Tensor) else type(perm).__name__
         raise ValueError(f"perm must be an integer tensor of shape ({n},), got {shape}")
-    if not torch.equal(perm.sort().values, torch.arange(n, dtype=perm.dtype, device=perm.device)):
-        raise ValueError(f"perm must be a permutation of range({n})")
 
 
 def _check_gamma(gamma: float) -> None:
@@ -78,19 +90,17 @@ def _check_gamma(gamma: float) -> None:
 
 
 def _check_reward_weight(reward_weight: float | Tensor) -> Tensor | float:
-    """The balance c as given (a float, or a detached 0-d tensor), checked to lie in [0, 1]."""
+    """The balance c as given: a float in [0, 1], or a 0-d float tensor, detached (a softmax ratio, in [0, 1] by
+    construction: its value is not read, which would be a host read on every gradient step)."""
     if isinstance(reward_weight, Tensor):
         if reward_weight.dim() != 0 or not reward_weight.is_floating_point():
             raise ValueError(f"reward_weight must be a float or a 0-d float tensor, got shape {reward_weight.shape}")
-        reward_weight = reward_weight.detach()
-        value = reward_weight.item()
-    elif isinstance(reward_weight, (int, float)) and not isinstance(reward_weight, bool):
-        value = float(reward_weight)
-    else:
+        return reward_weight.detach()
+    if not isinstance(reward_weight, (int, float)) or isinstance(reward_weight, bool):
         raise ValueError(f"reward_weight must be a float or a 0-d float tensor, got {type(reward_weight).__name__}")
-    if not 0 <= value <= 1:
-        raise ValueError(f"reward_weight must be in [0, 1], got {value!r}")
-    return reward_weight
+    if not 0 <= reward_weight <= 1:
+        raise ValueError(f"reward_weight must be in [0, 1], got {reward_weight!r}")
+    return float(reward_weight)
 
 
 def _check_reward_dim(reward_dim: int, d: int) -> None:
@@ -163,6 +173,37 @@ class ProbabilisticTransitionModel(nn.Module):
         return mu + sigma * eps
 
 
+class DeterministicTransitionModel(nn.Module):
+    """Latent dynamics mu(z, a), no spread: [z, a] -> Linear -> LayerNorm -> ReLU -> mu (the code's '' model,
+    which the SGFD code's committed run uses).
+
+    :param features_dim: size of the latent z (and of the predicted next latent)
+    :param action_dim: size of the action
+    :param hidden_dim: width of the hidden layer (512)
+    """
+
+    def __init__(self, features_dim: int, action_dim: int, hidden_dim: int = 512) -> None:
+        super().__init__()
+        _check_positive_int(features_dim, "features_dim")
+        _check_positive_int(action_dim, "action_dim")
+        _check_positive_int(hidden_dim, "hidden_dim")
+        self.features_dim, self.action_dim = features_dim, action_dim
+        self.trunk = nn.Sequential(
+            nn.Linear(features_dim + action_dim, hidden_dim), nn.LayerNorm(hidden_dim), nn.ReLU()
+        )
+        self.mu = nn.Linear(hidden_dim, features_dim)
+
+    def forward(self, z: Tensor, action: Tensor) -> tuple[Tensor, None]:
+        """The predicted next latent and no standard deviation: (mu (n, features_dim), None)."""
+        _check_matrix(z, "z", cols=self.features_dim)
+        _check_matrix(action, "action", rows=z.shape[0], cols=self.action_dim)
+        return self.mu(self.trunk(torch.cat([z, action], dim=1))), None
+
+    def sample(self, z: Tensor, action: Tensor, generator: torch.Generator | None = None) -> Tensor:
+        """The prediction itself (a point mass)."""
+        return self(z, action)[0]
+
+
 class RewardDecoder(nn.Module):
     """Reward model z -> Linear -> LayerNorm -> ReLU -> Linear(1).
 
@@ -189,22 +230,27 @@ class RewardDecoder(nn.Module):
         return self.net(z)
 
 
-def gaussian_nll(mu: Tensor, sigma: Tensor, target: Tensor) -> Tensor:
-    """Mean over all elements of 0.5 ((mu - target) / sigma)^2 + log sigma: -log N(target; mu, sigma) - 0.5 log 2 pi.
+def gaussian_nll(mu: Tensor, sigma: Tensor | None, target: Tensor, residual_scale: float = 1.0) -> Tensor:
+    """Mean over all elements of 0.5 (s (mu - target) / sigma)^2 + log sigma; with s = 1, -log N(target; mu,
+    sigma) - 0.5 log 2 pi.
 
     The transition model's loss in DBC and AMBS. ``target`` (the encoding of the next observation) should be
     detached by the caller, as in the official code: only the model and the encoder of the current observation
-    learn from it.
+    learn from it. AMBS's code halves the residual (s = 0.5: its optimal sigma is half the spread of the
+    residual); DBC's and the paper's is s = 1.
 
     :param mu: predicted means, shape (n, d)
-    :param sigma: predicted standard deviations, shape (n, d), > 0
+    :param sigma: predicted standard deviations, shape (n, d), > 0; None: 1 (a deterministic model)
     :param target: observed next latents, shape (n, d)
+    :param residual_scale: s, the factor on the residual
     :return: scalar loss
     """
     _check_matrix(mu, "mu")
-    _check_same_shape(sigma, "sigma", mu, "mu")
     _check_same_shape(target, "target", mu, "mu")
-    return (0.5 * ((mu - target) / sigma).square() + torch.log(sigma)).mean()
+    if sigma is None:
+        return (0.5 * (residual_scale * (mu - target)).square()).mean()
+    _check_same_shape(sigma, "sigma", mu, "mu")
+    return (0.5 * (residual_scale * (mu - target) / sigma).square() + torch.log(sigma)).mean()
 
 
 def wasserstein2(mu1: Tensor, sigma1: Tensor, mu2: Tensor, sigma2: Tensor) -> Tensor:
@@ -262,6 +308,47 @@ def bisimulation_loss(z: Tensor, rewards: Tensor, mu: Tensor, sigma: Tensor, per
     perm = perm.to(z.device)
     z_dist = (z - z[perm]).abs().sum(dim=1)
     target = (r - r[perm]).abs() + gamma * _dynamics_distance(mu.to(z), sigma.to(z), perm)
+    return (z_dist - target).square().mean()
+
+
+def _dimension_distances(mu: Tensor, sigma: Tensor | None, perm: Tensor) -> Tensor:
+    """The code's per-dimension distance between the predictions for i and perm(i), as a constant: (n, k). W2 of
+    each dimension's Gaussians, sqrt((mu_i - mu_j)^2 + (sigma_i - sigma_j)^2); for a deterministic model (sigma
+    None) the Huber distance of the means."""
+    mu = mu.detach()
+    if sigma is None:
+        return F.smooth_l1_loss(mu, mu[perm], reduction="none")
+    sigma = sigma.detach()
+    return torch.sqrt((mu - mu[perm]).square() + (sigma - sigma[perm]).square())
+
+
+def bisimulation_loss_code(
+    z: Tensor, rewards: Tensor, mu: Tensor, sigma: Tensor | None, perm: Tensor, gamma: float
+) -> Tensor:
+    """DBC's encoder loss as its authors' code computes it: the mean over the pairs (i, j = perm(i)) and the
+    dimensions k of (H(z_ik - z_jk) - H(r_i - r_j) - gamma W2_ijk)^2, H the Huber function (smooth L1, delta 1)
+    and W2_ijk that of dimension k (``_dimension_distances``). The paper's form is ``bisimulation_loss``.
+
+    :param z: encodings of a batch, shape (n, d), with grad
+    :param rewards: rewards of the batch, shape (n,) or (n, 1)
+    :param mu: predicted next-latent means, shape (n, d) (the transition model predicts the whole latent)
+    :param sigma: their standard deviations, shape (n, d); None: a deterministic model
+    :param perm: sample i is paired with perm[i] (a permutation of range(n))
+    :param gamma: discount of the bisimulation metric, in [0, 1)
+    :return: scalar loss
+    """
+    _check_matrix(z, "z")
+    n = z.shape[0]
+    r = _check_rewards(rewards, n).to(z)
+    _check_same_shape(mu, "mu", z, "z")
+    if sigma is not None:
+        _check_same_shape(sigma, "sigma", mu, "mu")
+    _check_perm(perm, n)
+    _check_gamma(gamma)
+    perm = perm.to(z.device)
+    z_dist = F.smooth_l1_loss(z, z[perm], reduction="none")
+    r_dist = F.smooth_l1_loss(r, r[perm], reduction="none").unsqueeze(1)
+    target = r_dist + gamma * _dimension_distances(mu.to(z), None if sigma is None else sigma.to(z), perm)
     return (z_dist - target).square().mean()
 
 
@@ -347,7 +434,7 @@ def ambs_metric_loss(
     aug_h: Tensor,
     rewards: Tensor,
     mu: Tensor,
-    sigma: Tensor,
+    sigma: Tensor | None,
     perm: Tensor,
     reward_weight: float | Tensor,
     reward_learner: MetricLearner,
@@ -366,13 +453,14 @@ def ambs_metric_loss(
     (constant, detached here as well). The 0.5 on each half is the official code's, whose auxiliary loss is then
     ``0.5 * ambs_metric_loss + 0.01 * (gaussian_nll + reward MSE)`` (bisim_coef 0.5, the 1e-2 hard-coded).
     The official code measures rewards with a Huber distance (smooth L1) and W2 per dimension averaged over the
-    dimensions; here |r_i - r_j| and the exact W2, as in the paper.
+    dimensions (``ambs_metric_loss_code``); here |r_i - r_j| and the exact W2, as in the paper.
 
     :param h: pre-ratio encoder features of one augmented view of the batch, shape (n, d), with grad
     :param aug_h: pre-ratio features of a second augmented view of the same observations, shape (n, d)
     :param rewards: rewards of the batch, shape (n,) or (n, 1)
     :param mu: predicted next dynamics-half means for each sample, shape (n, d - reward_dim)
-    :param sigma: predicted next dynamics-half standard deviations, shape (n, d - reward_dim)
+    :param sigma: predicted next dynamics-half standard deviations, shape (n, d - reward_dim); None: a
+        deterministic model (W2 between point masses, the distance of the means)
     :param perm: a permutation of range(n); sample i is paired with perm[i]
     :param reward_weight: the balance c in [0, 1], a float or a 0-d tensor (softmax ratio); detached here
     :param reward_learner: meta-learner d_r on the reward halves (trained by this loss too)
@@ -387,6 +475,7 @@ def ambs_metric_loss(
     r = _check_rewards(rewards, n).to(h)
     _check_reward_dim(reward_dim, d)
     _check_matrix(mu, "mu", rows=n, cols=d - reward_dim)
+    sigma = torch.zeros_like(mu) if sigma is None else sigma
     _check_same_shape(sigma, "sigma", mu, "mu")
     _check_perm(perm, n)
     _check_gamma(gamma)
@@ -404,3 +493,78 @@ def ambs_metric_loss(
     rew_target = (c * (r - r[perm]).abs()).repeat(2)
     dyn_target = ((1 - c) * gamma * _dynamics_distance(mu.to(h), sigma.to(h), perm)).repeat(2)
     return 0.5 * F.mse_loss(rew_dist, rew_target) + 0.5 * F.mse_loss(dyn_dist, dyn_target)
+
+
+def ambs_metric_loss_code(
+    h: Tensor,
+    aug_h: Tensor,
+    rewards: Tensor,
+    mu: Tensor,
+    sigma: Tensor | None,
+    perm: Tensor,
+    reward_weight: float | Tensor,
+    reward_learner: MetricLearner | None,
+    dynamics_learner: MetricLearner | None,
+    gamma: float,
+    reward_dim: int,
+) -> Tensor:
+    """AMBS's metric loss as its authors' code computes it (the paper's form is ``ambs_metric_loss``).
+
+    With c = ``reward_weight``, j = perm(i), and the pairs (A, B) in {(h_i, h_j), (h_j, aug_h_i)} of
+    ``ambs_metric_loss``:
+
+        0.5 mean (D_r(A_r, B_r) - c H(r_i - r_j))^2 + 0.5 mean (D_d(A_d, B_d) - gamma T_ij)^2,
+
+    H the Huber function (smooth L1), T_ij = (1 - c) times the mean over the dimensions of each dimension's W2
+    between the predictions for i and j; with a deterministic transition model (``sigma`` None), (1 - c) times the
+    per-dimension Huber distance of the predicted means, the squared error then averaged over the dimensions too.
+    With the meta-learners, D_r = c d_r and D_d = (1 - c) d_d (AMBS); without them (``reward_learner`` and
+    ``dynamics_learner`` None, the SGFD code's committed setting), D_r = c mean_k H(A_rk - B_rk) and D_d =
+    mean_k ((1 - c) (A_dk - B_dk))^2.
+
+    :param h: pre-ratio encoder features of one augmented view of the batch, shape (n, d), with grad
+    :param aug_h: pre-ratio features of a second augmented view of the same observations, shape (n, d)
+    :param rewards: rewards of the batch, shape (n,) or (n, 1)
+    :param mu: predicted next dynamics-half means, shape (n, d - reward_dim)
+    :param sigma: their standard deviations, the same shape; None: a deterministic model
+    :param perm: sample i is paired with perm[i] (a permutation of range(n))
+    :param reward_weight: the balance c in [0, 1], a float or a 0-d tensor (softmax ratio); detached here
+    :param reward_learner: meta-learner d_r on the reward halves, or None (both or neither)
+    :param dynamics_learner: meta-learner d_d on the dynamics halves, or None
+    :param gamma: discount of the bisimulation metric, in [0, 1)
+    :param reward_dim: size of the reward half, in [1, d - 1]
+    :return: scalar loss
+    """
+    _check_matrix(h, "h")
+    _check_same_shape(aug_h, "aug_h", h, "h")
+    n, d = h.shape
+    r = _check_rewards(rewards, n).to(h)
+    _check_reward_dim(reward_dim, d)
+    _check_matrix(mu, "mu", rows=n, cols=d - reward_dim)
+    if sigma is not None:
+        _check_same_shape(sigma, "sigma", mu, "mu")
+    _check_perm(perm, n)
+    _check_gamma(gamma)
+    c = _check_reward_weight(reward_weight)
+    if (reward_learner is None) != (dynamics_learner is None):
+        raise ValueError("reward_learner and dynamics_learner must both be MetricLearners or both be None")
+    if reward_learner is not None:
+        _check_learner(reward_learner, "reward_learner", reward_dim)
+        _check_learner(dynamics_learner, "dynamics_learner", d - reward_dim)
+    perm = perm.to(h.device)
+
+    first_rew, first_dyn = split_halves(torch.cat([h, h[perm]]), reward_dim)
+    second_rew, second_dyn = split_halves(torch.cat([h[perm], aug_h]), reward_dim)
+    if reward_learner is not None:
+        rew_dist = c * reward_learner(first_rew, second_rew)
+        dyn_dist = (1 - c) * dynamics_learner(first_dyn, second_dyn)  # type: ignore[misc]
+    else:
+        rew_dist = c * F.smooth_l1_loss(first_rew, second_rew, reduction="none").mean(dim=1)
+        dyn_dist = ((1 - c) * (first_dyn - second_dyn)).square().mean(dim=1)
+    rew_target = (c * F.smooth_l1_loss(r, r[perm], reduction="none")).repeat(2)
+    per_dimension = (1 - c) * _dimension_distances(mu.to(h), None if sigma is None else sigma.to(h), perm)
+    if sigma is None:  # per dimension, against the pair's one learned distance
+        dyn_error = dyn_dist.unsqueeze(1) - gamma * per_dimension.repeat(2, 1)
+    else:
+        dyn_error = dyn_dist - gamma * per_dimension.mean(dim=1).repeat(2)
+    return 0.5 * (rew_dist - rew_target).square().mean() + 0.5 * dyn_error.square().mean()

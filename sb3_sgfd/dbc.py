@@ -7,10 +7,19 @@ from typing import Any, ClassVar
 import torch as th
 from torch.nn import functional as F
 
-from sb3_sgfd.bisimulation import ProbabilisticTransitionModel, RewardDecoder, bisimulation_loss, gaussian_nll
+from sb3_sgfd.bisimulation import (
+    ProbabilisticTransitionModel,
+    RewardDecoder,
+    bisimulation_loss,
+    bisimulation_loss_code,
+    gaussian_nll,
+)
 from sb3_sgfd.encoder_sac import EncoderSAC
 from sb3_sgfd.representation import Batch, Representation, register, step
-from sb3_sgfd.validation import check_non_negative
+from sb3_sgfd.validation import check_choice, check_non_negative
+
+#: DBC's metric forms (``DBCRepresentation(metric=...)``): its authors' code's, and its paper's.
+DBC_METRICS = {"code": bisimulation_loss_code, "paper": bisimulation_loss}
 
 
 @register("dbc")
@@ -22,6 +31,10 @@ class DBCRepresentation(Representation):
     The bisimulation target uses the transition model's (detached) predictions for the replayed actions; the
     NLL is taken against the online encoder's detached next features, as the official code does.
 
+    :param metric: ``"code"``: the loss as DBC's code computes it (per-dimension Huber distances and W2, the
+        default: the published numbers and ``bisim_coef`` 0.5 come from it); ``"paper"``: the paper's formula
+        (L1 norm of the encodings, the W2 norm over the latent; about 1000x larger at 50 features, see
+        :func:`sb3_sgfd.bisimulation.bisimulation_loss_code`)
     :param bisim_coef: Weight of the bisimulation loss (DBC: 0.5)
     :param transition_coef: Weight of the transition NLL plus the reward MSE (DBC: 1)
     :param hidden_dim: Width of the transition model and reward decoder (DBC: 512)
@@ -32,6 +45,7 @@ class DBCRepresentation(Representation):
 
     def __init__(
         self,
+        metric: str = "code",
         bisim_coef: float = 0.5,
         transition_coef: float = 1.0,
         hidden_dim: int = 512,
@@ -40,7 +54,9 @@ class DBCRepresentation(Representation):
         decoder_weight_decay: float = 1e-7,
     ) -> None:
         super().__init__()
+        check_choice("metric", metric, DBC_METRICS)
         check_non_negative(bisim_coef=bisim_coef, transition_coef=transition_coef)
+        self.metric = metric
         self.bisim_coef, self.transition_coef = bisim_coef, transition_coef
         self.hidden_dim = hidden_dim
         self.encoder_lr, self.decoder_lr, self.decoder_weight_decay = encoder_lr, decoder_lr, decoder_weight_decay
@@ -65,7 +81,7 @@ class DBCRepresentation(Representation):
             next_z = critic.extract_features(batch.next_observations[0], critic.features_extractor)
             predicted = self.transition(z, data.actions)
         perm = th.randperm(len(z), generator=self.generator, device=self.generator.device).to(z.device)
-        bisim = bisimulation_loss(z, data.rewards, *predicted, perm, model.gamma)
+        bisim = DBC_METRICS[self.metric](z, data.rewards, *predicted, perm, model.gamma)
         mu, sigma = self.transition(z, data.actions)
         nll = gaussian_nll(mu, sigma, next_z)
         next_sample = self.transition.sample(z, data.actions, self.generator)

@@ -5,8 +5,15 @@ the argument and what was expected."""
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 
 import numpy as np
+
+
+def check_choice(name: str, value: object, choices: Collection[str]) -> None:
+    """Refuse ``value`` unless it is one of ``choices``, naming the argument ``name`` and the choices."""
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{name} must be one of {sorted(choices)}, got {value!r}")
 
 
 def check_positive_int(**values: int) -> None:

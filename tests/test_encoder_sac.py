@@ -112,6 +112,41 @@ def test_ambs_trains_its_ratio_through_the_critic_and_keeps_the_encoder_target_a
     assert agent.logger.name_to_value["ambs/reward_weight"] != 0.5
 
 
+@pytest.mark.parametrize("metric", ["code", "paper"])
+def test_dbc_and_ambs_train_with_either_form_of_their_metric(metric):
+    for algo, policy, kwargs, _ in (AGENTS["dbc"], AGENTS["ambs"]):
+        agent = algo(policy, pixel_env(), representation_kwargs={**kwargs, "metric": metric}, **TINY)
+        assert agent.representation_model.metric == metric
+    default = DBC(CnnPolicy, pixel_env(), representation_kwargs=AGENTS["dbc"][2], **TINY)
+    assert default.representation_model.metric == "code"  # the authors' code's form, by default
+    agent = AMBS(
+        AMBSPolicy,
+        pixel_env(),
+        representation_kwargs={**AGENTS["ambs"][2], "metric": metric},
+        **TINY,
+        policy_kwargs=policy_kwargs(AMBSPolicy),
+    ).learn(200)
+    logged = agent.logger.name_to_value
+    assert np.isfinite(logged["ambs/metric_loss"]) and np.isfinite(logged["ambs/transition_nll"])
+
+
+def test_ambs_as_the_sgfd_code_ran_it_keeps_its_ratio_and_measures_without_meta_learners():
+    # The SGFD code's committed objective: no meta-learners, the ratio fixed at 0.5, a deterministic transition.
+    kwargs = dict(hidden_dim=16, meta_learners=False, transition="deterministic", adaptive_ratio=False)
+    agent = AMBS(AMBSPolicy, pixel_env(), representation_kwargs=kwargs, **TINY, policy_kwargs=policy_kwargs(AMBSPolicy))
+    objective = agent.representation_model
+    assert objective.reward_learner is None and objective.dynamics_learner is None
+    assert type(objective.transition).__name__ == "DeterministicTransitionModel"
+    encoder_start = [p.clone() for p in agent.critic.features_extractor.trunk.parameters()]
+    agent.learn(240)
+    assert th.equal(agent.critic.features_extractor.ratio, th.zeros(2))
+    assert agent.logger.name_to_value["ambs/reward_weight"] == 0.5
+    assert any(
+        not th.equal(a, b)
+        for a, b in zip(encoder_start, agent.critic.features_extractor.trunk.parameters(), strict=True)
+    )
+
+
 def test_polyak_pairs_is_sb3s_soft_update():
     online, target = th.nn.Linear(3, 2), th.nn.Linear(3, 2)
     expected = [
@@ -178,6 +213,9 @@ def test_save_load_predicts_identically_and_keeps_the_objective_and_its_optimise
         (dict(representation_kwargs=dict(bisim_coef=1)), "given without a representation"),
         (dict(augmentation_views=1), "augmentation_views=1 shifts images"),
         (dict(representation="dbc"), "trains the encoder, but FlattenExtractor has no parameters"),
+        (dict(representation="dbc", representation_kwargs=dict(metric="papr")), "metric must be one of"),
+        (dict(representation="ambs", representation_kwargs=dict(transition="ensemble")), "transition must be one of"),
+        (dict(representation="ambs", representation_kwargs=dict(metric="paper", meta_learners=False)), "code's form"),
     ],
 )
 def test_bad_arguments_are_refused_by_name(kwargs, match):
