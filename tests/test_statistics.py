@@ -96,3 +96,39 @@ def test_render_shows_each_interval_and_the_runs_it_rests_on():
     cells = [cell.strip() for cell in line.strip("|").split("|")]
     assert cells[1] == "2" and cells[3].startswith("0.150 [")  # mean of 0.1 and 0.2
     assert cells[5] == "–"  # no probability of improving on itself
+
+
+def test_split_order_puts_train_first_then_each_benchmarks_modes_in_its_papers_order():
+    from zoo.statistics import split_sort_key
+
+    modes = ["video_hard", "hard", "color_easy", "rotate_easy", "train", "easy", "color_video_hard", "medium"]
+    assert sorted(modes, key=split_sort_key) == [
+        "train", "rotate_easy", "color_easy", "video_hard", "color_video_hard", "easy", "medium", "hard",
+    ]  # fmt: skip
+
+
+def test_benchmark_layout_is_tasks_by_modes_with_the_iqm_of_each_mode():
+    from zoo.evaluate import render_benchmark_tables
+
+    tasks = ("DMCGB/walker-walk-v0", "DMCGB/finger-spin-v0")
+    returns = {
+        "train": {task: [900.0, 800.0, 700.0] for task in tasks},
+        "video_hard": {tasks[0]: [100.0, 200.0, 300.0], tasks[1]: [400.0, 500.0, 600.0]},
+    }
+    rows = [row for split, by_task in returns.items() for row in results({"sac": by_task}, split=split)]
+    rows += results({"sac": {"SGFD/walker-walk-v0": [10.0]}}, split="test")  # not a benchmark id: left out
+    text = render_benchmark_tables(rows, reps=300)
+    lines = [line for line in text.splitlines() if line.startswith("|")]
+    header = [cell.strip() for cell in lines[0].strip("|").split("|")]
+    assert header == ["Task", "train", "video_hard"]
+    body = {line.split("|")[1].strip(): [c.strip() for c in line.strip("|").split("|")[1:]] for line in lines[2:]}
+    assert set(body) == {"walker-walk", "finger-spin", "**IQM**"}
+    assert body["walker-walk"] == ["800.0 ± 81.6", "200.0 ± 81.6"]
+    # The IQM over the 3 runs x 2 tasks of each mode, on return / 1000, as rliable computes it.
+    matrix = np.array([[0.1, 0.4], [0.2, 0.5], [0.3, 0.6]])
+    value, interval = body["**IQM**"][1].split(" [")
+    assert float(value) == pytest.approx(metrics.aggregate_iqm(matrix), abs=5e-4)
+    low, high = (float(x) for x in interval.rstrip("]").split(", "))
+    assert low <= float(value) <= high and low < high
+    assert "DMCGB: DR" in text and "SGFD" not in text
+    assert render_benchmark_tables(results({"sac": {"SGFD/walker-walk-v0": [10.0]}}, split="test")) == ""

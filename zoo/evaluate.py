@@ -1,5 +1,6 @@
 """``sgfd-zoo evaluate``: every trained model of a log folder on every split, as the paper's tables and as
-aggregate statistics with confidence intervals (:mod:`zoo.statistics`)."""
+aggregate statistics with confidence intervals (:mod:`zoo.statistics`); runs on a benchmark's ids (DMC-GB,
+DMC-GB2, the Distracting Control Suite) also in that benchmark's layout, tasks x modes, with the IQM of each mode."""
 
 from __future__ import annotations
 
@@ -14,10 +15,11 @@ import numpy as np
 from pytablewriter import MarkdownTableWriter
 
 import sgfd_envs
+from sgfd_envs.registry import BENCHMARK_KINDS, benchmark_of
 from zoo.algos import algo_sort_key, column_name
 from zoo.arguments import ZooError, check_at_least, check_env_id
 from zoo.runs import RunFolder, find_runs
-from zoo.statistics import read_csv, split_sort_key, write_csv, write_statistics
+from zoo.statistics import MAX_RETURN, aggregate, read_csv, score_rows, split_sort_key, write_csv, write_statistics
 
 RESULT_FIELDS = ["algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes", "run"]
 
@@ -100,13 +102,76 @@ def render_tables(results: list[dict[str, Any]]) -> str:
 
 
 def _task_name(env_id: str) -> str:
-    return env_id.split("/", 1)[-1].rsplit("-v", 1)[0]
+    """``walker-walk`` for SGFD's ids; a benchmark's keep its name, ``DMCGB2/walker-walk``, as their tasks repeat."""
+    name = env_id.rsplit("-v", 1)[0]
+    return name if benchmark_of(env_id) else name.split("/", 1)[-1]
 
 
-def write_results(results: list[dict[str, Any]], folder: Path) -> tuple[Path, Path]:
+def render_benchmark_tables(results: list[dict[str, Any]], reps: int = 2000, seed: int = 0) -> str:
+    """
+    DMC-GB's layout for the runs on a benchmark's ids: per benchmark and algorithm a table with its tasks as rows
+    and its modes as columns (``train`` first), ``mean ± std`` over seeds, and a last row with the IQM of each
+    mode's normalised scores over the algorithm's runs and the benchmark's tasks, with its 95% stratified-bootstrap
+    CI (rliable, :func:`zoo.statistics.aggregate`). Empty when no run is on a benchmark id.
+
+    :param results: rows of ``sgfd-zoo evaluate``
+    :param reps: bootstrap replications
+    :param seed: seeds the bootstrap
+    """
+    by_benchmark: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for row in results:
+        name = benchmark_of(row["env"])
+        if name is not None:
+            by_benchmark[name].append(row)
+    out = io.StringIO()
+    for name in (kind for kind in BENCHMARK_KINDS if kind in by_benchmark):
+        rows = by_benchmark[name]
+        iqm = {
+            (row["split"], row["algo"]): row
+            for row in aggregate(score_rows(rows), reps=reps, seed=seed)
+            if row["metric"] == "IQM"
+        }
+        by_cell: dict[tuple[str, str, str], list[float]] = defaultdict(list)
+        for row in rows:
+            by_cell[(row["algo"], row["env"], row["split"])].append(float(row["mean_reward"]))
+        modes = sorted({row["split"] for row in rows}, key=split_sort_key)
+        for algo in sorted({row["algo"] for row in rows}, key=algo_sort_key):
+            envs = sorted({env for a, env, _ in by_cell if a == algo})
+            matrix = []
+            for env in envs:
+                cells = [env.split("/", 1)[1].rsplit("-v", 1)[0]]
+                for mode in modes:
+                    values = by_cell.get((algo, env, mode))
+                    cells.append("–" if values is None else f"{np.mean(values):.1f} ± {np.std(values):.1f}")
+                matrix.append(cells)
+            aggregate_cells = ["**IQM**"]
+            for mode in modes:
+                row = iqm.get((mode, algo))
+                aggregate_cells.append(
+                    "–" if row is None else f"{row['value']:.3f} [{row['ci_low']:.3f}, {row['ci_high']:.3f}]"
+                )
+            matrix.append(aggregate_cells)
+            counts = [len(values) for (a, _, _), values in by_cell.items() if a == algo]
+            seeds = str(min(counts)) if min(counts) == max(counts) else f"{min(counts)}-{max(counts)}"
+            writer = MarkdownTableWriter(
+                table_name=(
+                    f"{name}: {column_name(algo)} (mean ± std over {seeds} seed{'s' if max(counts) > 1 else ''}; "
+                    f"IQM of return / {MAX_RETURN:g} over runs x tasks, 95% CI)"
+                ),
+                headers=["Task", *modes],
+                value_matrix=matrix,
+            )
+            writer.margin = 1
+            out.write(writer.dumps())
+            out.write("\n")
+    return out.getvalue()
+
+
+def write_results(results: list[dict[str, Any]], folder: Path, reps: int = 2000, seed: int = 0) -> tuple[Path, Path]:
+    """``results.csv`` and ``results.md`` (the paper's tables, then the benchmarks' layout) in ``folder``."""
     csv_path, md_path = folder / "results.csv", folder / "results.md"
     write_csv(results, csv_path, RESULT_FIELDS)
-    md_path.write_text(render_tables(results))
+    md_path.write_text(render_tables(results) + render_benchmark_tables(results, reps, seed))
     return csv_path, md_path
 
 
@@ -146,7 +211,7 @@ def main(argv: list[str]) -> int:
     for run in runs:
         print(f"Evaluating {run.algo} on {run.env_id} (seed {run.seed}): {run.path}")
         results += evaluate_run(run, args.n_episodes, args.seed)
-    csv_path, md_path = write_results(results, args.folder)
+    csv_path, md_path = write_results(results, args.folder, args.bootstrap_reps, args.seed)
     markdown, files = write_statistics(results, runs, args.folder, args.reference, args.bootstrap_reps, args.seed)
     print()
     print(md_path.read_text())

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from sgfd_envs.benchmarks import dcs, dmcgb2
 from zoo.algos import algo_sort_key, column_name
 from zoo.runs import RunFolder
 
@@ -26,7 +27,15 @@ SCORE_FIELDS = ["algo", "env", "seed", "split", "return"]
 AGGREGATE_FIELDS = ["split", "algo", "metric", "value", "ci_low", "ci_high"]
 METRICS = ("IQM", "mean", "optimality_gap")
 IMPROVEMENT = "probability_of_improvement"
-SPLIT_ORDER = ("train", "test", "interpolation", "extrapolation")
+# SGFD's splits, then the benchmarks' modes in their papers' order (DMC-GB's are a subsequence of DMC-GB2's).
+SPLIT_ORDER = (
+    "train",
+    "test",
+    "interpolation",
+    "extrapolation",
+    *dmcgb2.MODES[1:],
+    *dcs.SPLITS[1:],
+)
 
 
 def split_sort_key(split: str) -> tuple[int, str]:
