@@ -1,6 +1,7 @@
-"""Write a PNG grid of every SGFD id: its training domain 0 next to one unseen split.
+"""Write a PNG grid of every SGFD id (its training domain 0 next to one unseen split), or of a benchmark's ids
+(each task in its train split and every test mode).
 
-Usage: ``python -m sgfd_envs.demo --out grid.png``
+Usage: ``python -m sgfd_envs.demo --out grid.png [--benchmark DMCGB|DMCGB2|DCS]``
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
-from sgfd_envs.registry import SGFD_IDS, test_splits
+from sgfd_envs.registry import BENCHMARK_IDS, SGFD_IDS, benchmark_of, splits, test_splits
 
 _TILE = 168
 _LABEL_HEIGHT = 34
@@ -21,7 +22,7 @@ _LABEL_HEIGHT = 34
 def observe(env_id: str, split: str, steps: int, seed: int, image_size: int) -> tuple[np.ndarray, str]:
     """The pixel observation of domain 0 of a split after ``steps`` random actions, and a caption.
 
-    :param env_id: one of :data:`SGFD_IDS`
+    :param env_id: one of :data:`SGFD_IDS` or :data:`BENCHMARK_IDS`
     :param split: a split of the id
     :param steps: agent steps taken after reset, so the robot is in motion
     :param seed: seed of the reset and the actions
@@ -33,7 +34,8 @@ def observe(env_id: str, split: str, steps: int, seed: int, image_size: int) -> 
         for _ in range(steps):
             observation, *_ = env.step(env.action_space.sample())
         unwrapped = env.unwrapped
-        caption = f"{split} 0"
+        # A benchmark's split is one distribution (domain 0 says nothing).
+        caption = split if benchmark_of(env_id) else f"{split} 0"
         if unwrapped.setting is not None:
             caption += f" s{unwrapped.setting} {unwrapped.morphology_value:.3g}m"
     return observation, caption
@@ -64,15 +66,42 @@ def demo_grid(steps: int = 30, seed: int = 0, image_size: int = 84) -> np.ndarra
     return np.vstack([np.hstack(tiles) for tiles in rows.values()])
 
 
+def benchmark_grid(benchmark: str, steps: int = 30, seed: int = 0, image_size: int = 84) -> np.ndarray:
+    """RGB grid of a benchmark: one row per task, one column per split (train, then every test mode).
+
+    :param benchmark: ``"DMCGB"``, ``"DMCGB2"`` or ``"DCS"``
+    :param steps: agent steps taken after reset
+    :param seed: seed of the resets and actions
+    :param image_size: observation size
+    """
+    if benchmark not in BENCHMARK_IDS:
+        raise ValueError(f"benchmark must be one of {tuple(BENCHMARK_IDS)}, got {benchmark!r}")
+    rows = []
+    for env_id in BENCHMARK_IDS[benchmark]:
+        task_name = env_id.split("/", 1)[1].rsplit("-v", 1)[0]
+        tiles = []
+        for split in splits(env_id):
+            observation, caption = observe(env_id, split, steps, seed, image_size)
+            tiles.append(_labelled(observation, [task_name, caption]))
+        rows.append(np.hstack(tiles))
+    return np.vstack(rows)
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Command line entry: build every id and write the grid."""
+    """Command line entry: build every id (of SGFD or of one benchmark) and write the grid."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True, help="PNG file to write")
+    parser.add_argument(
+        "--benchmark", choices=("SGFD", *BENCHMARK_IDS), default="SGFD", help="whose ids (default: SGFD's ten)"
+    )
     parser.add_argument("--steps", type=int, default=30, help="random agent steps after reset")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--image-size", type=int, default=84)
     args = parser.parse_args(argv)
-    grid = demo_grid(args.steps, args.seed, args.image_size)
+    if args.benchmark == "SGFD":
+        grid = demo_grid(args.steps, args.seed, args.image_size)
+    else:
+        grid = benchmark_grid(args.benchmark, args.steps, args.seed, args.image_size)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(args.out), cv2.cvtColor(grid, cv2.COLOR_RGB2BGR)):
         raise OSError(f"could not write {str(args.out)!r}")
