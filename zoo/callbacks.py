@@ -304,13 +304,15 @@ class ResumableCheckpointCallback(BaseCallback):
             print(f"Removed what interrupted saves left in {self.save_path}: {', '.join(removed)}")
 
     def _on_step(self) -> bool:
-        if self.stop:
-            newest = self.newest()
-            if newest is None or newest.num_timesteps != self.num_timesteps:
+        saved = None
+        if self.save_freq is not None and self.n_calls % self.save_freq == 0:
+            saved = self.save()
+            if saved is None:
+                self.stopped = self.num_timesteps
+                return False
+        if self.stop:  # (a Ctrl-C during the periodic save above stops at it)
+            if saved is None:
                 self.save()
-            self.stopped = self.num_timesteps
-            return False
-        if self.save_freq is not None and self.n_calls % self.save_freq == 0 and self.save() is None:
             self.stopped = self.num_timesteps
             return False
         return True

@@ -9,8 +9,6 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-from zoo.arguments import ZooError
-
 # command -> (module:function, one-line description)
 COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("zoo.training:train", "train an agent (rl-zoo3's flags, plus --quick, --resume, --no-progress)"),
@@ -65,16 +63,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     if command not in COMMANDS:
         print(f"sgfd-zoo: error: unknown command {command!r}; choose from {', '.join(COMMANDS)}", file=sys.stderr)
         return 2
-    module, _, function = COMMANDS[command][0].partition(":")
     try:
-        return getattr(importlib.import_module(module), function)(rest) or 0
-    except ZooError as error:
-        print(f"sgfd-zoo {command}: {error.label}: {error}", file=sys.stderr)
-        return error.exit_code
+        return run(command, rest)
     except KeyboardInterrupt:
         # Training handles Ctrl-C itself (it stops at a checkpoint); this is Ctrl-C anywhere else.
         print(f"sgfd-zoo {command}: interrupted", file=sys.stderr)
         return 130
+
+
+def run(command: str, argv: Sequence[str]) -> int:
+    """Run ``command``'s function on ``argv``; a ZooError is printed as one line and gives its exit code."""
+    from zoo.arguments import ZooError  # here, not at the top: a Ctrl-C while it imports sgfd_envs is caught
+
+    module, _, function = COMMANDS[command][0].partition(":")
+    try:
+        return getattr(importlib.import_module(module), function)(argv) or 0
+    except ZooError as error:
+        print(f"sgfd-zoo {command}: {error.label}: {error}", file=sys.stderr)
+        return error.exit_code
 
 
 if __name__ == "__main__":

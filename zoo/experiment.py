@@ -3,11 +3,12 @@ resume from one."""
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import errno
 import inspect
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -223,7 +224,8 @@ class SGFDExperimentManager(ExperimentManager):
         if self._eval_env_kwargs_args is None:
             self.eval_env_kwargs = dict(self.env_kwargs)
         if not explicit_n_envs:
-            self.n_envs = sgfd_envs.n_domains(self.env_name.gym_id, "train", **self.env_kwargs)
+            with env_kwargs_checked(self.env_kwargs):
+                self.n_envs = sgfd_envs.n_domains(self.env_name.gym_id, "train", **self.env_kwargs)
         check_algo_kwargs(self.algo, processed)
         check_policy_fits(self.algo, processed, observes_pixels(self.env_kwargs))
         check_nested_kwargs(self.algo, processed)
@@ -249,14 +251,15 @@ class SGFDExperimentManager(ExperimentManager):
     def create_split_env(self, split: str, n_envs: int | None = None, eval_env: bool = True) -> VecEnv:
         """A VecEnv over the domains of ``split``, wrapped the way training wraps it (frame stack, transpose)."""
         env_kwargs = self.eval_env_kwargs if eval_env else self.env_kwargs
-        env = sgfd_envs.make_domain_vec_env(
-            self.env_name.gym_id,
-            split=split,
-            n_envs=n_envs,
-            seed=self.seed + (10_000 if eval_env else 0),
-            vec_env_cls=self.vec_env_class,
-            **env_kwargs,
-        )
+        with env_kwargs_checked(env_kwargs):
+            env = sgfd_envs.make_domain_vec_env(
+                self.env_name.gym_id,
+                split=split,
+                n_envs=n_envs,
+                seed=self.seed + (10_000 if eval_env else 0),
+                vec_env_cls=self.vec_env_class,
+                **env_kwargs,
+            )
         return wrap_like_training(env, self.frame_stack, self._maybe_normalize if self.normalize else None, eval_env)
 
     # -- callbacks -------------------------------------------------------------------------------
@@ -507,6 +510,16 @@ class SGFDExperimentManager(ExperimentManager):
                     f"free space, then finish it with: {self.train_command(resume=True)}"
                 ) from None
         return None
+
+
+@contextlib.contextmanager
+def env_kwargs_checked(env_kwargs: dict[str, Any]) -> Iterator[None]:
+    """The ValueError or TypeError of an env built with ``env_kwargs`` (sgfd_envs names the kwarg and those the
+    id takes) as a one-line ZooError."""
+    try:
+        yield
+    except (ValueError, TypeError) as error:
+        raise ZooError(f"env_kwargs {env_kwargs}: {_first_line(error)}") from error
 
 
 def wrap_like_training(env: VecEnv, frame_stack: int | None, normalize=None, eval_env: bool = True) -> VecEnv:

@@ -103,13 +103,15 @@ def enjoy(argv: Sequence[str]) -> int:
         with command_line("sgfd-zoo enjoy", argv):
             rl_zoo3.enjoy.enjoy()
     except ValueError as error:
-        if not any(sign in str(error) for sign in ("spaces do not match", "Unexpected observation shape")):
-            raise
-        # SB3's checks when an env does not fit the agent: most often --env-kwargs that change the observations.
-        raise ZooError(
-            "the env does not give the observations the agent was trained on (leave out --env-kwargs that change "
-            f"obs_type, image_size or observe_parameter; split:'...' and domain:... are fine): {error}"
-        ) from None
+        if any(sign in str(error) for sign in ("spaces do not match", "Unexpected observation shape")):
+            # SB3's checks when an env does not fit the agent: most often --env-kwargs that change the observations.
+            raise ZooError(
+                "the env does not give the observations the agent was trained on (leave out --env-kwargs that "
+                f"change obs_type, image_size or observe_parameter; split:'...' and domain:... are fine): {error}"
+            ) from None
+        # Otherwise what rl-zoo3 and the env refuse: no model in the folder, an env kwarg the id does not take.
+        lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+        raise ZooError(lines[0] if lines else repr(error)) from None
     return 0
 
 
