@@ -7,6 +7,7 @@ The file is one section per kind of fault; a new case goes in its section (a new
 - damaged checkpoints: truncated and zeroed model zip, replay buffer pickle and ``checkpoint.json``;
 - disk full: a write that fails with ENOSPC, in a checkpoint and in the final save;
 - signals: SIGINT and SIGKILL of ``sgfd-zoo train`` subprocesses, at chosen and at random points;
+- partial final models: what a stopped run's folder may hold is never taken for a finished run;
 - configuration typos: unknown keys inside the kwargs hyperparameters, in every command that reads them.
 
 Every run is the quick configuration of SAC on states, cut to a few hundred steps with a tiny network.
@@ -34,7 +35,7 @@ import ray
 import stable_baselines3.common.base_class
 import stable_baselines3.common.off_policy_algorithm
 
-from zoo import training
+from zoo import sweep, training
 from zoo.cli import main as zoo_main
 from zoo.runs import FINISHED_MARKER, RunFolder, read_index
 
@@ -411,6 +412,32 @@ def test_signals_at_random_points_leave_a_finished_or_a_resumable_run(tmp_path: 
         code, _out, err = zoo(train_args(logs, *resume))
         assert code == 0, f"{where}: {err}"
         assert_finished(run, 400)
+
+
+# -- partial final models ------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("final_model", ["short of its total", "cut short"])
+def test_a_partial_final_model_is_never_taken_for_a_finished_run(logs: Path, final_model: str) -> None:
+    run = run_of(logs)
+    newest, previous = read_index(run)
+    # What rl-zoo3 left before the zoo's marker existed: the model of a run stopped by Ctrl-C, saved as final;
+    # or the file a kill during its final save left.
+    if final_model == "short of its total":
+        shutil.copy(run / previous.files["model"].name, run / f"{NAME}.zip")
+    else:
+        shutil.copy(run / newest.files["model"].name, run / f"{NAME}.zip")
+        truncate(run / f"{NAME}.zip")
+
+    assert not RunFolder(run).finished
+    code, _out, err = zoo(["evaluate", "-f", str(logs), "--n-episodes", "1"])
+    assert code == 2 and err[-1].startswith(f"sgfd-zoo evaluate: error: no finished run under {logs}")
+    code, _out, err = zoo(["enjoy", "--algo", "sac", "--env", ENV_ID, "-f", str(logs), "-n", "10", "--no-render"])
+    assert code == 2 and err[-1] == f"sgfd-zoo enjoy: error: no finished sac run of {ENV_ID} under {logs} " + (
+        "(expected sac/<EnvName>_<id>/)"
+    )
+    jobs, done, _ = sweep.plan(logs, ["sac"], [ENV_ID], [0])
+    assert done == [] and [(job.run_id, job.run.checkpoint.num_timesteps) for job in jobs] == [(1, 400)]
 
 
 # -- configuration typos --------------------------------------------------------------------------------------

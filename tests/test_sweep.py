@@ -163,11 +163,14 @@ def first_sweep(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int, st
     """
     Two tiny SGFD runs and two SAC runs that fail (each "crashed" earlier, leaving a checkpoint that is whole,
     as written, but no model: resuming it fails, and the sweep must not start it again over it), on a local
-    Ray instance the sweep starts itself; then the evaluation of what finished.
+    Ray instance the sweep starts itself; then the evaluation of what finished. SGFD's seed 1 "crashed" too,
+    leaving a checkpoint whose model was zeroed since: none of its checkpoints verifies, so it starts again.
     """
     folder = tmp_path_factory.mktemp("sweep") / "logs"
     for seed in (0, 1):
         make_run(folder, "sac", seed + 1, seed=seed, checkpoint=300)
+    zeroed = make_run(folder, "sgfd_sac", 2, seed=1, checkpoint=300) / "checkpoint_300_steps.zip"
+    zeroed.write_bytes(bytes(zeroed.stat().st_size))
     argv = ["sweep", "--algos", "sgfd_sac", "sac", "--envs", ENV, "--seeds", "0", "1", "-f", str(folder)]
     argv += ["--num-cpus", "2", "--n-episodes", "1", *TINY]
     out = io.StringIO()
@@ -190,7 +193,11 @@ def test_sweep_trains_each_seed_into_its_own_folder_reports_failures_and_evaluat
     ]
     for run in runs:
         log = run.path.with_name(f"{run.path.name}.log").read_text()
-        assert f"sgfd_sac on {ENV} seed {run.seed}" in log and "(new run)" in log
+        assert f"sgfd_sac on {ENV} seed {run.seed}" in log
+    logs = [run.path.with_name(f"{run.path.name}.log").read_text() for run in runs]
+    assert "(new run)" in logs[0] and "(resuming from its checkpoint)" in logs[1]
+    assert "--resume: no usable checkpoint in " in logs[1] and "=== so starting it again from step 0" in logs[1]
+    assert not (runs[1].path / "progress_from_300.csv").exists()
     # The failures: in the summary with their reason and log, and no run folder left behind.
     summary = out.rsplit("\nsweep: ", 1)[1]
     assert summary.startswith("2 trained, 0 already finished, 2 failed")
