@@ -232,3 +232,14 @@ def test_the_benchmark_ids_work_with_make_domain_vec_env():
 def test_bad_arguments_are_refused_by_name(env_id, kwargs, error, message):
     with pytest.raises(error, match=message):
         gym.make(env_id, **kwargs)
+
+
+@pytest.mark.slow
+def test_the_demo_draws_every_task_of_a_benchmark_in_every_split():
+    from sgfd_envs.demo import benchmark_grid
+
+    grid = benchmark_grid("DCS", steps=1, image_size=16)
+    # 6 tasks x 4 splits, each tile 168 px under a 34 px caption
+    assert grid.shape == (6 * (34 + 168), 4 * 168, 3)
+    with pytest.raises(ValueError, match="benchmark must be one of"):
+        benchmark_grid("DMCGB3")

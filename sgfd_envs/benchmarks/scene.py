@@ -52,7 +52,8 @@ def rgb_attribute(rgb: Sequence[float]) -> str:
     return " ".join(f"{float(c):.17g}" for c in rgb)
 
 
-@functools.lru_cache(maxsize=8)
+# A few entries: envs of one process that draw the same colours share the bytes (a skybox is 11.5 MB).
+@functools.lru_cache(maxsize=4)
 def _compiled_texture(items: tuple[tuple[str, str], ...]) -> np.ndarray:
     attributes = dict(items)
     element = ET.Element("texture", attributes)
@@ -93,7 +94,6 @@ class TextureSlot:
         height, width = int(self._model.tex_height[self.texture_id]), int(self._model.tex_width[self.texture_id])
         self.original_shape = (height, width)
         self._capacity = height * width * int(self._model.tex_nchannel[self.texture_id])
-        self._original = self._model.tex_data[self._address : self._address + self._capacity].copy()
         self._stale = False
 
     def write(self, data: np.ndarray, shape: tuple[int, int] | None = None) -> None:
@@ -113,10 +113,6 @@ class TextureSlot:
         self._model.tex_width[self.texture_id] = width
         self._model.tex_data[self._address : self._address + flat.size] = flat
         self._stale = True
-
-    def restore(self) -> None:
-        """Put the model's own texture back."""
-        self.write(self._original, self.original_shape)
 
     def upload_if_changed(self, renderer: CameraRenderer) -> None:
         """Send the texture to the GPU if it changed since the last upload."""
