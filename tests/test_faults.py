@@ -17,10 +17,12 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import io
 import json
 import os
 import random
+import re
 import shlex
 import shutil
 import signal
@@ -30,6 +32,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy
 import pytest
 import ray
 import stable_baselines3.common.base_class
@@ -212,6 +215,7 @@ def failing_on(call: int, real: Callable, write_first: int = 1000) -> Callable:
     """``real``, except that its ``call``-th call writes a few bytes and fails as a full disk does."""
     calls = []
 
+    @functools.wraps(real)
     def write(path, *args, **kwargs):
         calls.append(path)
         if len(calls) != call:
@@ -235,18 +239,39 @@ def test_a_full_disk_during_a_checkpoint_stops_training_in_one_line_and_keeps_th
 
     run = run_of(logs)
     assert code == 1 and err[-1].startswith("sgfd-zoo train: stopped: the checkpoint at 400 steps was not written to ")
-    assert f"written to {run}: No space left on device (it needs about " in err[-1] and " MB free); " in err[-1]
-    assert "the previous checkpoint (200 steps) is intact; free space, then continue with: " in err[-1]
+    room = r"\(it needs about [\d.]+ [kMG]B, [\d.]+ [kMG]B free\)"
+    assert re.search(f"written to {re.escape(str(run))}: No space left on device {room}; ", err[-1]), err[-1]
+    assert "the previous checkpoint (200 steps) is intact; free space, then continue it with: " in err[-1]
     assert not [line for line in err if "Traceback" in line]
     assert [checkpoint.num_timesteps for checkpoint in read_index(run)] == [200]
     assert read_index(run)[0].problem(run) is None and leftovers(run) == []
     assert not RunFolder(run).finished and not (run / f"{NAME}.zip").exists()
 
     monkeypatch.setattr(stable_baselines3.common.off_policy_algorithm, "save_to_pkl", real)  # space freed
-    code, out, err = zoo(printed_command(err[-1], "continue with: "))
+    code, out, err = zoo(printed_command(err[-1], "continue it with: "))
     assert code == 0, err
     assert f"Resuming {run} from 200 steps" in out
     assert_finished(run, 600)
+
+
+@pytest.mark.slow
+def test_a_full_disk_before_any_checkpoint_stops_training_and_names_the_command_that_starts_it_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(numpy, "savez", failing_on(1, numpy.savez))  # the first evaluation's file
+    logs = tmp_path / "logs"
+    run = run_of(logs)
+
+    code, _out, err = zoo([*train_args(logs, steps=200), "--eval-freq", "100", "--eval-episodes", "1"])
+
+    assert code == 1 and err[-1].startswith("sgfd-zoo train: stopped: evaluations_train.npz (at 100 steps) was not ")
+    assert f"written to {run}: No space left on device (it needs more than 1 kB, " in err[-1]
+    assert f"no checkpoint in {run}; free space, then start it again with: " in err[-1]
+    assert not RunFolder(run).finished and leftovers(run) == [] and not list(run.glob("evaluations_*"))
+    monkeypatch.setattr(numpy, "savez", numpy.savez.__wrapped__)
+    code, _out, err = zoo(printed_command(err[-1], "start it again with: "))
+    assert code == 0, err
+    assert_finished(run, 200)
 
 
 def test_a_full_disk_during_the_final_save_leaves_the_run_unfinished_and_resumable(
@@ -259,10 +284,11 @@ def test_a_full_disk_during_the_final_save_leaves_the_run_unfinished_and_resumab
     code, _out, err = zoo(train_args(logs, "--resume"))  # nothing to train: the final save only
 
     assert code == 1 and err[-1].startswith(f"sgfd-zoo train: stopped: the final model was not written to {run}: ")
-    assert "No space left on device (it needs about 0.1 MB, " in err[-1] and "the run is not finished" in err[-1]
+    assert re.search(r"No space left on device \(it needs about \d+ kB, ", err[-1]), err[-1]  # the model's size
+    assert "the run is not finished; free space, then continue it with: " in err[-1]
     assert not RunFolder(run).finished and leftovers(run) == []
     monkeypatch.setattr(stable_baselines3.common.base_class, "save_to_zip_file", real)
-    code, _out, err = zoo(printed_command(err[-1], "finish it with: "))
+    code, _out, err = zoo(printed_command(err[-1], "continue it with: "))
     assert code == 0, err
     assert_finished(run, 400)
 

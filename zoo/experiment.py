@@ -450,34 +450,39 @@ class SGFDExperimentManager(ExperimentManager):
         except KeyboardInterrupt:
             raise TrainingStopped(
                 f"Ctrl-C twice: stopped at once at {model.num_timesteps} steps, {self._kept()}; the run is not "
-                f"finished; continue it with: {self.train_command(resume=True)}",
+                f"finished; {self._next_command()}",
                 exit_code=130,
             ) from None
         except (FileWriteError, OSError) as error:
             if not isinstance(error, FileWriteError) and error.errno not in NO_ROOM:
                 raise
-            if not isinstance(error, FileWriteError):
-                error = FileWriteError(Path(error.filename or self.save_path), error.strerror or str(error), error)
+            if not isinstance(error, FileWriteError):  # a log file, say
+                path = Path(error.filename) if error.filename else Path(self.save_path) / "(a log file)"
+                error = FileWriteError(path, error.strerror or str(error), error)
             what = f"{error.path.name} (at {model.num_timesteps} steps)"
             raise TrainingStopped(
-                f"{write_failure(what, error.path.parent, error, None, self._kept())}; free space, then continue "
-                f"with: {self.train_command(resume=True)}"
+                f"{write_failure(what, error.path.parent, error, None, self._kept())}; free space, then "
+                f"{self._next_command()}"
             ) from None
         finally:
             if model.env is not None:
                 model.env.close()
         assert self.checkpointer is not None
         if self.checkpointer.failure is not None:
-            raise TrainingStopped(
-                f"{self.checkpointer.failure}; free space, then continue with: {self.train_command(resume=True)}"
-            )
+            raise TrainingStopped(f"{self.checkpointer.failure}; free space, then {self._next_command()}")
         if self.stop and model.num_timesteps < self.n_timesteps:
             raise TrainingStopped(
                 f"{self.stop.reason} at {model.num_timesteps} steps: {self._kept()}; the run is not finished; "
-                f"continue it with: {self.train_command(resume=True)}",
+                f"{self._next_command()}",
                 exit_code=130,
             )
         return None
+
+    def _next_command(self) -> str:
+        """What goes on with the run: ``--resume`` from its newest checkpoint, or, without one, the same flags."""
+        if self.checkpointer is not None and self.checkpointer.newest() is not None:
+            return f"continue it with: {self.train_command(resume=True)}"
+        return f"start it again with: {self.train_command(resume=False)}"
 
     def _kept(self) -> str:
         newest = self.checkpointer.newest() if self.checkpointer is not None else None
@@ -507,7 +512,7 @@ class SGFDExperimentManager(ExperimentManager):
                 size = None if newest is None else newest.files["model"].size
                 raise TrainingStopped(
                     f"{write_failure('the final model', folder, error, size, self._kept())}; the run is not finished; "
-                    f"free space, then finish it with: {self.train_command(resume=True)}"
+                    f"free space, then {self._next_command()}"
                 ) from None
         return None
 

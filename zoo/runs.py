@@ -298,13 +298,18 @@ def write_failure(what: str, folder: Path, error: FileWriteError, expected_size:
         bytes written before the failure are a lower bound
     :param kept: what is intact, e.g. ``the previous checkpoint (400 steps) is intact``
     """
-    needed = f"about {_megabytes(expected_size)}" if expected_size else f"more than {_megabytes(error.bytes_written)}"
-    free = _megabytes(shutil.disk_usage(folder).free)
-    return f"{what} was not written to {folder}: {error.reason} (it needs {needed}, {free} free); {kept}"
+    free = f"{_megabytes(shutil.disk_usage(folder).free)} free"
+    if expected_size:
+        room = f"it needs about {_megabytes(expected_size)}, {free}"
+    elif error.bytes_written:
+        room = f"it needs more than {_megabytes(error.bytes_written)}, {free}"
+    else:
+        room = free
+    return f"{what} was not written to {folder}: {error.reason} ({room}); {kept}"
 
 
 def _megabytes(size: float) -> str:
-    return f"{size / 1e6:.1f} MB"
+    return f"{size / 1e9:.1f} GB" if size >= 1e9 else f"{size / 1e6:.1f} MB" if size >= 1e5 else f"{size / 1e3:.0f} kB"
 
 
 def mark_finished(folder: Path, model: StoredFile, num_timesteps: int) -> None:
