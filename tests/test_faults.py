@@ -10,6 +10,8 @@ The file is one section per kind of fault; a new case goes in its section (a new
 - partial final models: what a stopped run's folder may hold is never taken for a finished run;
 - configuration typos: unknown keys inside the kwargs hyperparameters, in every command that reads them.
 
+(Bad data, such as NaN observations or out-of-range domain labels, would be a section of its own.)
+
 Every run is the quick configuration of SAC on states, cut to a few hundred steps with a tiny network.
 """
 
@@ -508,6 +510,14 @@ def test_a_typo_inside_a_kwargs_hyperparameter_is_one_line_naming_the_key_and_th
     assert err[0].startswith(f"sgfd-zoo {command}: error: unknown key(s) in ") and message in err[0]
     assert "; it takes " in err[0]
     assert not (tmp_path / "logs").exists()
+
+
+def test_a_configuration_that_does_not_build_is_one_line_and_leaves_no_run_folder(tmp_path: Path) -> None:
+    argv = ["train", "--algo", "sac", "--env", ENV_ID, "--quick", "-f", str(tmp_path / "logs")]
+    code, _out, err = zoo([*argv, "-params", "train_freq:(1, 'stepz')"])  # SB3 refuses it when it builds
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith("sgfd-zoo train: error: sac on SGFD/MT-walker-walk-v0 cannot be built from this ")
+    assert "'stepz'" in err[0] and not (tmp_path / "logs").exists()
 
 
 def test_the_sweep_refuses_a_typo_once_at_planning_before_any_run(tmp_path: Path) -> None:

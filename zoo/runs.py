@@ -506,9 +506,14 @@ class RunFolder:
 
     def load_model(self, device: str = "cpu") -> BaseAlgorithm:
         """The final model, without allocating its replay buffer."""
-        if self.algo not in SGFD_ALGOS:
-            raise ZooError(f"{self.path}: unknown algorithm {self.algo!r}; choose from {', '.join(SGFD_ALGOS)}")
-        algo_class = SGFD_ALGOS[self.algo].algo_class
+        if self.algo in SGFD_ALGOS:
+            algo_class = SGFD_ALGOS[self.algo].algo_class
+        else:  # a run rl-zoo3 itself trained into the folder
+            from rl_zoo3.utils import ALGOS
+
+            if self.algo not in ALGOS:
+                raise ZooError(f"{self.path}: unknown algorithm {self.algo!r}; choose from {', '.join(SGFD_ALGOS)}")
+            algo_class = ALGOS[self.algo]
         return algo_class.load(self.model_path, custom_objects={"buffer_size": 1}, device=device)
 
 
