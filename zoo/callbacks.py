@@ -347,7 +347,7 @@ class ResumableCheckpointCallback(BaseCallback):
             checkpoint = Checkpoint(steps, written)
             write_index(folder, [checkpoint, *previous])
         except FileWriteError as error:
-            remove_checkpoint_files(folder, previous)
+            remove_checkpoint_files(folder, _listed(folder, previous))
             # The new checkpoint is about the size of the previous one; without one, what was written is a bound.
             error.bytes_written += sum(stored.size or 0 for stored in written.values())
             kept = "no checkpoint"
@@ -355,12 +355,20 @@ class ResumableCheckpointCallback(BaseCallback):
                 kept = f"the previous checkpoint ({previous[0].num_timesteps} steps) is intact"
             self.failure = write_failure(f"the checkpoint at {steps} steps", folder, error, _size(previous), kept)
             return None
-        except BaseException:
-            remove_checkpoint_files(folder, previous)
+        except BaseException:  # a second Ctrl-C, say
+            remove_checkpoint_files(folder, _listed(folder, previous))
             raise
         if self.verbose > 0:
             print(f"Checkpoint at {steps} steps in {folder}")
         return checkpoint
+
+
+def _listed(folder: Path, otherwise: list[Checkpoint]) -> list[Checkpoint]:
+    """What the index lists now (it may already list the new checkpoint when a save is interrupted)."""
+    try:
+        return read_index(folder)
+    except UnreadableFile:
+        return otherwise
 
 
 def _size(checkpoints: list[Checkpoint]) -> int | None:
