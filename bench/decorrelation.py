@@ -10,6 +10,13 @@ reduction, the effective sample size ESS / n, and loss_after / loss_before.
 Then the same solver on real states of the MT ids (``state_table``), where the synthetic batches' verdict on a
 setting need not hold: there, the worst batch matters as much as the mean.
 
+The strength curve (``strength_table``, synthetic and real states): how much of the domain feature's
+correlation each reading's weights remove against how many samples they keep (ESS), for the paper reading
+at ESS penalties from its default 0.35 up (SGFD_SAC's ``reweight_ess_penalty``, the strength knob; inside a
+trust region above 1, where its steps otherwise collapse on real states), and for the official reading (the
+authors' code, its memory filled by earlier batches) at its penalty 5 and below; the same p for every row, and
+one row with the official reading's own p (guided backprop of its classifier, no temperature).
+
     .venv/bin/python bench/decorrelation.py            # 20 seeds, d = 10 and 50, 3 MT ids (about 2 minutes)
     .venv/bin/python bench/decorrelation.py --seeds 5  # quicker
 """
@@ -34,6 +41,7 @@ from sb3_sgfd.reweighting import (
     WeightMemory,
     effective_sample_size,
     learn_sample_weights,
+    solve_weights,
     weighted_pearson,
 )
 from sb3_sgfd.saliency import (
@@ -43,10 +51,21 @@ from sb3_sgfd.saliency import (
     saliency_map,
     train_classifier,
 )
+from sb3_sgfd.weighting_official import OfficialClassifier, solve_official_weights
+from sb3_sgfd.weighting_paper import PaperWeighting
 from sgfd_analysis.correlation import collect_states, standardised_sample, state_names
 from sgfd_analysis.correlation import train_domain_classifier as correlation_classifier
 
 N_BATCH, N_TRAIN, N_DOMAINS = 128, 8192, 4  # the memory rows use 40 of the training batches
+# The paper reading's solver settings (SGFD_SAC's defaults), for solve_weights, which has no defaults of its own.
+PAPER_SOLVER = {
+    "n_rff": 5,
+    "iters": PaperWeighting.defaults["reweight_iters"],
+    "lr": PaperWeighting.defaults["reweight_lr"],
+    "momentum": 0.9,
+    "weight_decay": PaperWeighting.defaults["reweight_weight_decay"],
+    "ess_penalty": PaperWeighting.defaults["reweight_ess_penalty"],
+}
 
 
 def train_domain_classifier(
@@ -262,6 +281,127 @@ def state_table(env_id: str, steps_per_domain: int = 1000) -> None:
     print_table(["setting", "|r| before", "reduction mean (worst)", "ESS/n mean (worst)"], rows)
 
 
+# (label, reading, solver settings): the paper reading from its default towards uniform weights, then the
+# official reading from its default towards stronger weights.
+STRENGTHS: list[tuple[str, str, dict]] = [
+    ("paper, ess_penalty 0.35 (default)", "paper", {}),
+    ("paper, ess_penalty 0.7", "paper", {"ess_penalty": 0.7}),
+    ("paper, ess_penalty 1.5, max_step 1 (sgfd_sac_moderate)", "paper", {"ess_penalty": 1.5, "max_step": 1.0}),
+    ("paper, ess_penalty 3, max_step 1", "paper", {"ess_penalty": 3.0, "max_step": 1.0}),
+    ("paper, ess_penalty 6, max_step 1", "paper", {"ess_penalty": 6.0, "max_step": 1.0}),
+    ("official, penalty 5 (default)", "official", {}),
+    ("official, penalty 1", "official", {"ess_penalty": 1.0}),
+    ("official, penalty 0.2", "official", {"ess_penalty": 0.2}),
+]
+N_EARLIER = 10  # batches the official reading's memory has seen before the measured one
+
+
+def strength_weights(reading: str, z: Tensor, probs: Tensor, earlier: list[Tensor], seed: int, **settings) -> Tensor:
+    """One reading's weights of the batch z, given p; the official reading's memory first solves ``earlier``."""
+    generator = torch.Generator().manual_seed(10_000 + seed)
+    if reading == "paper":
+        return learn_sample_weights(z, probs, generator=generator, **settings)
+    memory = WeightMemory(0.9)
+    for index, batch in enumerate(earlier):
+        solve_official_weights(batch, probs, memory=memory, generator=torch.Generator().manual_seed(index), **settings)
+    return solve_official_weights(z, probs, memory=memory, generator=generator, **settings)[0]
+
+
+def official_probs(train_z: Tensor, train_domains: Tensor, z: Tensor, seed: int, rounds: int = 100) -> Tensor:
+    """p from the official reading's own classifier, trained its way (SGD 0.01 on the cross-entropy of its softmax
+    output, rounds of 10 steps on 640 samples while a batch's accuracy is below 0.8): guided backprop, T = 1."""
+    torch.manual_seed(seed)
+    classifier = OfficialClassifier(z.shape[1], N_DOMAINS)
+    optimizer = torch.optim.SGD(classifier.parameters(), lr=0.01, momentum=0.9, weight_decay=1e-4)
+    generator = torch.Generator().manual_seed(seed)
+    for _ in range(rounds):
+        index = torch.randint(len(train_z), (N_BATCH,), generator=generator)
+        if classifier_accuracy(classifier, train_z[index], train_domains[index]) >= 0.8:
+            break
+        for _ in range(10):
+            index = torch.randint(len(train_z), (5 * N_BATCH,), generator=generator)
+            loss = torch.nn.functional.cross_entropy(classifier.probabilities(train_z[index]), train_domains[index])
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+    return torch.softmax(classifier.guided_saliency(z).abs().mean(dim=0), dim=0)
+
+
+def strength_rows(batches: list[tuple[Tensor, Tensor, list[Tensor], Callable[[Tensor], float]]]) -> list[list[str]]:
+    """The curve's rows over ``batches`` of (z, p, earlier batches, |r| of the domain feature under weights)."""
+    rows = []
+    for label, reading, settings in STRENGTHS:
+        cuts, ess, largest = [], [], []
+        for seed, (z, probs, earlier, correlation) in enumerate(batches):
+            weights = strength_weights(reading, z, probs, earlier, seed, **settings)
+            cuts.append(1 - correlation(weights) / correlation(torch.ones(len(z))))
+            ess.append(effective_sample_size(weights) / len(weights))
+            largest.append(weights.max().item())
+        mean = statistics.fmean
+        rows.append(
+            [
+                label,
+                f"{mean(cuts):.1%} ({min(cuts):.1%})",
+                f"{mean(ess):.2f} ({min(ess):.2f})",
+                f"{mean(largest):.2f}",
+            ]
+        )
+    return rows
+
+
+STRENGTH_HEADER = ["reading, setting", "|r| cut mean (worst)", "ESS/n mean (min)", "largest weight"]
+
+
+def strength_table(cases: list[Case]) -> None:
+    """The strength curve on the synthetic batches (each case's p), and the official reading with its own p."""
+    batches = [
+        (
+            case.batch.z,
+            case.probs,
+            [case.train_z[i * N_BATCH : (i + 1) * N_BATCH] for i in range(N_EARLIER)],
+            lambda weights, case=case: tied_correlation(case.batch, weights),
+        )
+        for case in cases
+    ]
+    rows = strength_rows(batches)
+    cuts, ess = [], []
+    for seed, case in enumerate(cases):
+        probs = official_probs(case.train_z, case.train_domains, case.batch.z, case.seed)
+        earlier = batches[seed][2]
+        weights = strength_weights("official", case.batch.z, probs, earlier, seed)
+        cuts.append(1 - tied_correlation(case.batch, weights) / tied_correlation(case.batch))
+        ess.append(effective_sample_size(weights) / N_BATCH)
+    mean = statistics.fmean
+    rows.append(
+        ["official, its own p (guided backprop)", f"{mean(cuts):.1%} ({min(cuts):.1%})", f"{mean(ess):.2f}", ""]
+    )
+    print_table(STRENGTH_HEADER, rows)
+
+
+def strength_state_table(env_id: str, steps_per_domain: int = 1000, n_batches: int = 12) -> None:
+    """The strength curve on real states (as ``state_table``: random-action states of the training domains, the
+    varied parameter's |r| with the other features), the first ``n_batches`` batches of 128."""
+    with gym.make(env_id, obs_type="state") as env:
+        n_state = len(state_names(env, env_id))
+    sample = collect_states(env_id, steps_per_domain=steps_per_domain, n_state_features=n_state)
+    z_all, domains = standardised_sample(sample)
+    generator = torch.Generator().manual_seed(0)
+    classifier, _ = correlation_classifier(z_all, domains, int(domains.max()) + 1, N_BATCH, generator)
+    others = [column for column in range(z_all.shape[1]) if column != sample.changed]
+    order = torch.randperm(len(z_all), generator=generator)
+    chunks = [z_all[order[i * N_BATCH : (i + 1) * N_BATCH]] for i in range(len(z_all) // N_BATCH)]
+
+    def correlation_of(z: Tensor) -> Callable[[Tensor], float]:
+        return lambda weights: weighted_pearson(z, weights)[sample.changed, others].abs().mean().item()
+
+    batches = [
+        (z, feature_probabilities(classifier, z), chunks[index + 1 : index + 1 + N_EARLIER], correlation_of(z))
+        for index, z in enumerate(chunks[:n_batches])
+    ]
+    print(f"\n## strength on {env_id}: {n_batches} batches of real states, d = {z_all.shape[1]}\n")
+    print_table(STRENGTH_HEADER, strength_rows(batches))
+
+
 def median_ms(fn: Callable[[], object], repeats: int = 50) -> float:
     for _ in range(5):
         fn()
@@ -278,6 +418,8 @@ def timing_table() -> None:
     classifier = DomainClassifier(50, N_DOMAINS)
     probs = feature_probabilities(classifier, z)
     generator = torch.Generator().manual_seed(0)
+    memory = WeightMemory(0.9)
+    solve_official_weights(z, probs, memory=memory, generator=generator)
     default_threads = torch.get_num_threads()
     rows = []
     for threads in sorted({1, default_threads}):
@@ -296,6 +438,18 @@ def timing_table() -> None:
                 f"{median_ms(lambda: feature_probabilities(classifier, z)):.2f}",
             ]
         )
+        paper_ms = median_ms(lambda: solve_weights(z, probs, generator=generator, **PAPER_SOLVER))
+        official_ms = median_ms(
+            lambda: solve_official_weights(z, probs, memory=memory, update_memory=False, generator=generator)
+        )
+        rows.append(["the paper reading's solve (its defaults, as SGFD_SAC runs it)", str(threads), f"{paper_ms:.2f}"])
+        rows.append(
+            [
+                f"the official reading's solve (20 epochs, batch and memory): {official_ms / paper_ms:.2f}x",
+                str(threads),
+                f"{official_ms:.2f}",
+            ]
+        )
     torch.set_num_threads(default_threads)
     print_table(["call (CPU)", "threads", "median ms"], rows)
 
@@ -311,15 +465,22 @@ def main() -> None:
         default=["SGFD/MT-walker-walk-v0", "SGFD/MT-cheetah-run-v0", "SGFD/MT-finger-spin-v0"],
         help="ids whose real states the solver settings also run on (none: skip)",
     )
+    parser.add_argument("--only-strength", action="store_true", help="only the strength curve and the timing")
     args = parser.parse_args()
     for d in args.dims:
         cases = [Case(d, seed, args.tie_noise) for seed in range(args.seeds)]
         print(f"\n## d = {d}, n = {N_BATCH}, {args.seeds} seeds, tie noise {args.tie_noise}\n")
-        decorrelation_table(cases)
-        print()
-        saliency_table(cases, d)
+        if not args.only_strength:
+            decorrelation_table(cases)
+            print()
+            saliency_table(cases, d)
+            print()
+        print(f"### strength: cut against ESS, both readings (d = {d})\n")
+        strength_table(cases)
     for env_id in args.state_ids:
-        state_table(env_id)
+        if not args.only_strength:
+            state_table(env_id)
+        strength_state_table(env_id)
     print("\n## timing\n")
     timing_table()
 

@@ -124,7 +124,8 @@ class AMBSRepresentation(Representation):
         aug_h = encoder.embed(self._preprocess(model, second_view))
         with th.no_grad():
             next_h = encoder.embed(self._preprocess(model, batch.next_observations[0]))
-            actor_actions = model.actor(observations, deterministic=True)
+            # the actor reads these features (scaled by the ratio): no second pass of the encoder
+            actor_actions = model.actor.action_of_features(encoder.scaled(h), deterministic=True)
             h_dynamics = split_halves(h, encoder.reward_dim)[1]
             predicted = self.transition(h_dynamics, actor_actions)
         perm = th.randperm(len(h), generator=self.generator, device=self.generator.device).to(h.device)

@@ -12,6 +12,8 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.preprocessing import get_obs_shape
 from stable_baselines3.common.vec_env import VecNormalize
 
+from sb3_sgfd.validation import check_positive_int, check_transitions
+
 try:
     import psutil
 except ImportError:  # pragma: no cover - psutil comes with SB3's usual installs
@@ -78,6 +80,12 @@ class DomainReplayBuffer(ReplayBuffer):
     :param same_episode_negatives: Also return, with each sample, a non-adjacent observation of its episode
         (``same_episode_observations``), drawn with the buffer's own numpy generator (seeded once from
         ``np.random`` at construction)
+    :param n_domains: Number of domain labels, so that a label outside [0, n_domains) is refused at ``add``
+        (EncoderSAC's agents pass their envs' count); None: any non-negative label
+
+    Every ``add`` refuses a non-finite observation, action or reward and a label out of range, naming the
+    sub-env, its domain and the add (:func:`sb3_sgfd.validation.check_transitions`): nothing bad is stored, so
+    nothing bad reaches a checkpoint.
     """
 
     domains: np.ndarray
@@ -100,7 +108,11 @@ class DomainReplayBuffer(ReplayBuffer):
         handle_timeout_termination: bool = True,
         frame_stack: int | None = None,
         same_episode_negatives: bool = False,
+        n_domains: int | None = None,
     ):
+        if n_domains is not None:
+            check_positive_int(n_domains=n_domains)
+        self.n_domains = n_domains
         if not isinstance(same_episode_negatives, (bool, np.bool_)):
             raise ValueError(f"same_episode_negatives must be a bool, got {same_episode_negatives!r}")
         self.frame_stack = _check_frame_stack(frame_stack, observation_space, optimize_memory_usage)
@@ -136,6 +148,7 @@ class DomainReplayBuffer(ReplayBuffer):
         # Buffers pickled before episode tracking existed: no negatives, episodes rebuilt from the done flags.
         state.setdefault("same_episode_negatives", False)
         state.setdefault("_negatives_rng", None)
+        state.setdefault("n_domains", None)
         self.__dict__.update(state)
         if "episodes" not in state:
             self._rebuild_episodes()
@@ -255,6 +268,15 @@ class DomainReplayBuffer(ReplayBuffer):
         ended = np.asarray(done)
         if ended.size != self.n_envs:
             raise ValueError(f"done must hold one flag per env ({self.n_envs}), got shape {ended.shape}")
+        check_transitions(
+            observations=obs,
+            next_observations=next_obs,
+            actions=action,
+            rewards=reward,
+            domains=labels,
+            n_domains=self.n_domains,
+            add_index=self._n_adds,
+        )
         ended = ended.reshape(self.n_envs) != 0
         if self.frame_stack is None:
             # Read before super().add() because that call advances self.pos.

@@ -59,6 +59,9 @@ class EncoderSAC(SAC):
     :param representation: An encoder objective registered in :mod:`sb3_sgfd.representation` ("dbc", "ambs",
         "ted", "sgqn"), or None
     :param representation_kwargs: Its hyperparameters
+    :param actor_reuses_features: The actor's Q on the critic's encoder features of the step, detached (no second
+        encoder pass, as the authors' codes detach the encoder); False: SB3's, the batch encoded again after the
+        critic's step (the same values on states, where the features are the observations)
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -110,6 +113,7 @@ class EncoderSAC(SAC):
         ent_coef_beta: float = 0.9,
         representation: str | None = None,
         representation_kwargs: dict[str, Any] | None = None,
+        actor_reuses_features: bool = True,
         _init_setup_model: bool = True,
     ):
         check_positive_int(actor_update_interval=actor_update_interval)
@@ -139,6 +143,7 @@ class EncoderSAC(SAC):
         self.ent_coef_beta = ent_coef_beta
         self.representation = representation
         self.representation_kwargs = dict(representation_kwargs or {})
+        self.actor_reuses_features = actor_reuses_features
         super().__init__(
             policy,
             env,
@@ -172,10 +177,15 @@ class EncoderSAC(SAC):
     def _setup_model(self) -> None:
         # SB3 builds the replay buffer in super()._setup_model(): the objective's needs go in first.
         representation_model = make_representation(self.representation, self.representation_kwargs)
+        buffer_class = self.replay_buffer_class
+        domain_buffer = buffer_class is not None and issubclass(buffer_class, DomainReplayBuffer)
         if representation_model is not None and representation_model.needs_same_episode:
-            if self.replay_buffer_class is None or not issubclass(self.replay_buffer_class, DomainReplayBuffer):
+            if not domain_buffer:
                 raise ValueError(f"the {self.representation!r} representation needs a DomainReplayBuffer")
             self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "same_episode_negatives": True}
+        if domain_buffer and self.env is not None and "n_domains" not in self.replay_buffer_kwargs:
+            # so that a label outside the envs' domains is refused where it enters
+            self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "n_domains": self._domain_count()}
         super()._setup_model()
         if self.ent_coef_optimizer is not None and (self.ent_coef_lr is not None or self.ent_coef_beta != 0.9):
             lr = self.lr_schedule(1) if self.ent_coef_lr is None else self.ent_coef_lr
@@ -209,6 +219,15 @@ class EncoderSAC(SAC):
                 representation_model.setup(self)
             representation_model.to(self.device)
         self._encoder_pairs, self._head_pairs = self._target_pairs()
+
+    def _domain_count(self) -> int:
+        """The number of domain labels of the envs: their largest ``n_domains`` attribute, or the number of
+        sub-envs if they have none (SGFD_SAC's ``n_domains`` overrides it)."""
+        try:
+            counts = self.env.get_attr("n_domains")  # type: ignore[union-attr]
+        except AttributeError:
+            return self.env.num_envs  # type: ignore[union-attr]
+        return max(int(count) for count in counts)
 
     def _derived_seeds(self) -> dict[str, int]:
         """Seeds of the generators the additions to SAC draw from, all from the model's seed: one stream,
@@ -251,13 +270,20 @@ class EncoderSAC(SAC):
             # + the actor and the entropy coefficient learn every `actor_update_interval` steps
             update_actor = update_index % self.actor_update_interval == 0
 
+            # Get current Q-values estimates for each critic network
+            # using action from the replay buffer (+ per view, each with the encoder features it came from; + first,
+            # so that the actor reads the critic's features of the batch instead of encoding it again)
+            critic_outputs = [self._critic_and_features(obs, replay_data.actions) for obs in observations]
+            current_q_values = [q_values for q_values, _ in critic_outputs]
+            z = critic_outputs[0][1].detach()  # +
+
             # We need to sample because `log_std` may have changed between two gradient steps
             if self.use_sde:
                 self.actor.reset_noise()
 
             if update_actor:
                 # Action by the current actor for the sampled state
-                actions_pi, log_prob = self.actor.action_log_prob(observations[0])
+                actions_pi, log_prob = self._actor_action_log_prob(observations[0], z)
                 log_prob = log_prob.reshape(-1, 1)
 
             ent_coef_loss = None
@@ -288,12 +314,7 @@ class EncoderSAC(SAC):
                     self._target_q_values(next_obs, replay_data, ent_coef, discounts) for next_obs in next_observations
                 ) / len(next_observations)
 
-            # Get current Q-values estimates for each critic network
-            # using action from the replay buffer (+ per view, each with the encoder features it came from)
-            critic_outputs = [self._critic_and_features(obs, replay_data.actions) for obs in observations]
-            current_q_values = [q_values for q_values, _ in critic_outputs]
             # + per-sample weights of the critic and actor losses (SGFD) from the first view's features; None = SAC
-            z = critic_outputs[0][1].detach()
             critic_weights, actor_weights = self._batch_weights(replay_data, z, batch_size, update_index, update_actor)
 
             # Compute critic loss  (+ mean over views, weighted per sample)
@@ -313,7 +334,7 @@ class EncoderSAC(SAC):
             # Optimize the critic
             self.critic.optimizer.zero_grad()
             critic_loss.backward()
-            self._clip_grad_norm(self.critic)  # +
+            self._clip_grad_norm(self.critic.optimizer)  # +
             self.critic.optimizer.step()
 
             # + the representation objective's own step (DBC, AMBS, TED, SGQN)
@@ -323,8 +344,8 @@ class EncoderSAC(SAC):
                     self._stats[f"{self.representation}/{key}"].append(value)
 
             if update_actor:
-                # Min over all critic networks
-                q_values_pi = th.cat(self.critic(observations[0], actions_pi), dim=1)
+                # Min over all critic networks (+ on this step's features of the batch: no second encoder pass)
+                q_values_pi = th.cat(self._actor_q_values(observations[0], z, actions_pi), dim=1)
                 min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
                 actor_loss = weighted_mean(ent_coef * log_prob - min_qf_pi, actor_weights)  # + weighted
                 actor_losses.append(finite(actor_loss.item(), "actor loss", update_index))
@@ -332,7 +353,7 @@ class EncoderSAC(SAC):
                 # Optimize the actor
                 self.actor.optimizer.zero_grad()
                 actor_loss.backward()
-                self._clip_grad_norm(self.actor)  # +
+                self._clip_grad_norm(self.actor.optimizer)  # +
                 self.actor.optimizer.step()
 
             # Update target networks
@@ -407,9 +428,33 @@ class EncoderSAC(SAC):
         """
         return None, None
 
-    def _clip_grad_norm(self, module: th.nn.Module) -> None:
+    def _actor_action_log_prob(self, observations: th.Tensor, z: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """The actor's actions and their log-probabilities for the batch, from the critic's features z of it when
+        the actor reads the critic's encoder (the same values SB3's actor computes, without a second pass)."""
+        if self._actor_reads_critic_features:
+            return self.actor.action_log_prob_of_features(z)  # type: ignore[attr-defined]
+        return self.actor.action_log_prob(observations)
+
+    def _actor_q_values(self, observations: th.Tensor, z: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
+        """The critic's Q of the actor's actions. With ``actor_reuses_features``, on the critic's (detached)
+        features of this step: the authors' codes evaluate it with the encoder detached, and the features are
+        already computed; else SB3's, the batch encoded again by the critic's updated encoder, whose gradient the
+        actor's optimiser then throws away."""
+        if self.actor_reuses_features and self._actor_reads_critic_features:
+            q_input = th.cat([z, actions], dim=1)
+            return tuple(q_net(q_input) for q_net in self.critic.q_networks)
+        return self.critic(observations, actions)
+
+    @property
+    def _actor_reads_critic_features(self) -> bool:
+        # SGFDPolicy: one encoder, the critic's, which the actor reads detached (SB3's own SAC policies: not so).
+        return isinstance(self.policy, SGFDPolicy)
+
+    def _clip_grad_norm(self, optimizer: th.optim.Optimizer) -> None:
+        """Clip the gradient norm of the parameters ``optimizer`` steps (the actor's exclude the shared encoder)."""
         if self.max_grad_norm is not None:
-            th.nn.utils.clip_grad_norm_(module.parameters(), self.max_grad_norm)
+            parameters = [param for group in optimizer.param_groups for param in group["params"]]
+            th.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """The critic's encoder features z of a batch of observations (as the buffer returns them), without gradient."""

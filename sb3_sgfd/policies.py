@@ -17,7 +17,7 @@ from gymnasium import spaces
 from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
-from stable_baselines3.sac.policies import Actor, SACPolicy
+from stable_baselines3.sac.policies import LOG_STD_MAX, LOG_STD_MIN, Actor, SACPolicy
 from torch import nn
 
 
@@ -111,20 +111,48 @@ class AMBSEncoder(BaseFeaturesExtractor):
         """c, the weight of the reward part."""
         return th.softmax(self.ratio, dim=0)[0]
 
-    def forward(self, observations: th.Tensor) -> th.Tensor:
+    def scaled(self, features: th.Tensor) -> th.Tensor:
+        """Unscaled features (``embed``'s) scaled by the ratio: what ``forward`` returns for them."""
         c = th.softmax(self.ratio, dim=0)
         scale = th.cat([c[:1].expand(self.reward_dim), c[1:].expand(self.features_dim - self.reward_dim)])
-        return self.embed(observations) * scale
+        return features * scale
+
+    def forward(self, observations: th.Tensor) -> th.Tensor:
+        return self.scaled(self.embed(observations))
 
 
 class DetachedEncoderActor(Actor):
-    """SB3's SAC actor, reading the shared encoder's features without backpropagating into it."""
+    """SB3's SAC actor, reading the shared encoder's features without backpropagating into it. Its distribution
+    can also be taken from features already computed (``*_of_features``): the critic's encoding of the batch
+    serves the actor too, instead of a second pass of the encoder."""
 
     def extract_features(  # type: ignore[override]
         self, obs: PyTorchObs, features_extractor: BaseFeaturesExtractor
     ) -> th.Tensor:
         with th.no_grad():
             return super().extract_features(obs, features_extractor)
+
+    def get_action_dist_params(self, obs: PyTorchObs) -> tuple[th.Tensor, th.Tensor, dict[str, th.Tensor]]:
+        return self.dist_params_of_features(self.extract_features(obs, self.features_extractor))
+
+    def dist_params_of_features(self, features: th.Tensor) -> tuple[th.Tensor, th.Tensor, dict[str, th.Tensor]]:
+        """SB3's ``get_action_dist_params`` after the encoder: mean, log std and keyword arguments."""
+        latent_pi = self.latent_pi(features)
+        mean_actions = self.mu(latent_pi)
+        if self.use_sde:
+            return mean_actions, self.log_std, dict(latent_sde=latent_pi)
+        log_std = th.clamp(self.log_std(latent_pi), LOG_STD_MIN, LOG_STD_MAX)  # type: ignore[operator]
+        return mean_actions, log_std, {}
+
+    def action_log_prob_of_features(self, features: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """``action_log_prob`` of observations whose encoder features are ``features`` (detached)."""
+        mean_actions, log_std, kwargs = self.dist_params_of_features(features.detach())
+        return self.action_dist.log_prob_from_params(mean_actions, log_std, **kwargs)
+
+    def action_of_features(self, features: th.Tensor, deterministic: bool = False) -> th.Tensor:
+        """``forward`` of observations whose encoder features are ``features`` (detached)."""
+        mean_actions, log_std, kwargs = self.dist_params_of_features(features.detach())
+        return self.action_dist.actions_from_params(mean_actions, log_std, deterministic=deterministic, **kwargs)
 
 
 class SGFDPolicy(SACPolicy):

@@ -35,3 +35,52 @@ def check_non_negative(**values: float) -> None:
     for name, value in values.items():
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < math.inf:
             raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+
+def check_transitions(
+    *,
+    observations: np.ndarray,
+    next_observations: np.ndarray,
+    actions: np.ndarray,
+    rewards: np.ndarray,
+    domains: np.ndarray,
+    n_domains: int | None,
+    add_index: int,
+) -> None:
+    """Refuse one add's transitions (one row per sub-env) if an observation, next observation, action or reward is
+    not finite, or a domain label lies outside [0, ``n_domains``): the error names the sub-env, its domain, the add
+    and the value, before anything is stored.
+
+    :param add_index: the buffer's count of earlier adds (the vector step of the run, for an unbroken run)
+    """
+    n_envs = len(domains)
+    where = "at add {add} (sub-env {env}, domain {domain})"
+    if n_domains is not None:
+        outside = np.flatnonzero(domains >= n_domains)
+        if len(outside) > 0:
+            env = int(outside[0])
+            raise ValueError(
+                f"the replay buffer refuses domain label {int(domains[env])} from info['domain'] "
+                + where.format(add=add_index, env=env, domain=int(domains[env]))
+                + f": labels must lie in [0, n_domains={n_domains}); pass n_domains= at least one more than the "
+                "largest label"
+            )
+    for name, values in (
+        ("observation", observations),
+        ("next observation", next_observations),
+        ("action", actions),
+        ("reward", rewards),
+    ):
+        array = np.asarray(values)
+        if array.dtype.kind not in "fc":
+            continue  # integer images are finite
+        rows = array.reshape(n_envs, -1)
+        finite = np.isfinite(rows).all(axis=1)
+        if not finite.all():
+            env = int(np.flatnonzero(~finite)[0])
+            value = rows[env][~np.isfinite(rows[env])][0]
+            raise ValueError(
+                f"the replay buffer refuses a non-finite {name} ({value}) "
+                + where.format(add=add_index, env=env, domain=int(domains[env]))
+                + ": the env produced it; nothing of this add was stored"
+            )

@@ -61,3 +61,36 @@ def test_samples_match_sb3_replay_buffer_under_the_same_seed():
     got = ours.sample(64)
     for name in ("observations", "actions", "next_observations", "dones", "rewards"):
         assert th.equal(getattr(expected, name), getattr(got, name)), name
+
+
+@pytest.mark.parametrize(
+    ("field", "match"),
+    [
+        ("obs", r"non-finite observation \(nan\) at add 3 \(sub-env 1, domain 2\)"),
+        ("next_obs", r"non-finite next observation \(inf\) at add 3 \(sub-env 1, domain 2\)"),
+        ("action", r"non-finite action \(nan\) at add 3 \(sub-env 1, domain 2\)"),
+        ("reward", r"non-finite reward \(-inf\) at add 3 \(sub-env 1, domain 2\)"),
+        ("label", r"domain label 5 from info\['domain'\] at add 3 \(sub-env 1, domain 5\).*n_domains=4"),
+    ],
+)
+@pytest.mark.parametrize("frame_stack", [None, 1])
+def test_bad_data_is_refused_at_add_and_nothing_of_it_is_stored(field, match, frame_stack):
+    buffer = DomainReplayBuffer(
+        16, OBS_SPACE, ACTION_SPACE, device="cpu", n_envs=2, n_domains=4, frame_stack=frame_stack
+    )
+    fill(buffer, 3, lambda step: [0, 2])
+    obs, next_obs = np.zeros((2, 3), dtype=np.float32), np.zeros((2, 3), dtype=np.float32)
+    action, reward, labels = np.zeros((2, 2), dtype=np.float32), np.zeros(2, dtype=np.float32), [0, 2]
+    value = {"obs": np.nan, "next_obs": np.inf, "action": np.nan, "reward": -np.inf}.get(field)
+    target = {"obs": obs, "next_obs": next_obs, "action": action}.get(field)
+    if target is not None:
+        target[1, 0] = value
+    elif field == "reward":
+        reward[1] = value
+    else:
+        labels = [0, 5]
+    before = (buffer.pos, buffer.rewards.copy(), buffer.domains.copy())
+    with pytest.raises(ValueError, match=match):
+        buffer.add(obs, next_obs, action, reward, np.zeros(2), [{"domain": label} for label in labels])
+    assert buffer.pos == before[0] and np.array_equal(buffer.rewards, before[1])
+    assert np.array_equal(buffer.domains, before[2])

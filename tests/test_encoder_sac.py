@@ -40,8 +40,11 @@ AGENTS = {
         dict(overlay_images=OVERLAYS, consistency_coef=0.0, attribution_coef=0.0),
     ),
 }
-# What each adds to SAC's loop, switched off: then only the objective differs from SAC.
-AS_SAC = dict(augmentation_views=0, encoder_tau=None, max_grad_norm=None, actor_update_interval=1)
+# What each adds to SAC's loop, switched off: then only the objective differs from SAC. (SB3's SAC evaluates the
+# actor's Q on the batch encoded again after the critic's step; the agents, by default, on the step's features.)
+AS_SAC = dict(
+    augmentation_views=0, encoder_tau=None, max_grad_norm=None, actor_update_interval=1, actor_reuses_features=False
+)
 
 
 def policy_kwargs(policy) -> dict:
@@ -234,3 +237,58 @@ def test_an_agent_refuses_another_objective():
         AMBS(AMBSPolicy, pixel_env(), representation="dbc")
     with pytest.raises(ValueError, match="needs the AMBSEncoder"):
         EncoderSAC(CnnPolicy, pixel_env(), representation="ambs", policy_kwargs=policy_kwargs(CnnPolicy))
+
+
+def encoder_passes_per_update(agent: EncoderSAC, steps: int) -> float:
+    """Forward passes of the critic's encoder inside ``train``, per gradient step, over ``steps`` env steps."""
+    passes, training = [], [False]
+    agent.critic.features_extractor.register_forward_hook(lambda *args: passes.append(1) if training[0] else None)
+    train = agent.train
+
+    def counted(*args, **kwargs):
+        training[0] = True
+        try:
+            return train(*args, **kwargs)
+        finally:
+            training[0] = False
+
+    agent.train = counted
+    agent.learn(steps)
+    return len(passes) / agent._n_updates
+
+
+@pytest.mark.parametrize("name", [*AGENTS, "sgfd_on_ambs"])
+def test_the_actor_loss_reads_the_critics_features_instead_of_encoding_the_batch_again(name):
+    passes = {}
+    for reuse in (True, False):
+        if name == "sgfd_on_ambs":
+            kwargs = dict(representation="ambs", representation_kwargs=AGENTS["ambs"][2], classifier_start=0)
+            agent = SGFD_SAC(AMBSPolicy, pixel_env(), **kwargs, **TINY, policy_kwargs=policy_kwargs(AMBSPolicy))
+        else:
+            algo, policy, kwargs, _ = AGENTS[name]
+            agent = algo(policy, pixel_env(), representation_kwargs=kwargs, **TINY, policy_kwargs=policy_kwargs(policy))
+        agent.actor_update_interval, agent.actor_reuses_features = 1, reuse
+        passes[reuse] = encoder_passes_per_update(agent, 140)
+    # one pass less per step: the actor's Q comes from the features the critic's loss computed
+    assert passes[False] - passes[True] == pytest.approx(1.0), passes
+
+
+def test_gradient_clipping_counts_only_the_parameters_each_optimiser_steps(monkeypatch):
+    clipped = []
+    clip = th.nn.utils.clip_grad_norm_
+    monkeypatch.setattr(
+        th.nn.utils,
+        "clip_grad_norm_",
+        lambda params, norm, **kw: clipped.append(list(params)) or clip(clipped[-1], norm),
+    )
+    agent = AMBS(AMBSPolicy, pixel_env(), representation_kwargs=AGENTS["ambs"][2], **TINY)
+    agent.learn(120)
+    groups = {
+        "actor": {id(p) for group in agent.actor.optimizer.param_groups for p in group["params"]},
+        "critic": {id(p) for group in agent.critic.optimizer.param_groups for p in group["params"]},
+    }
+    seen = [{id(p) for p in params} for params in clipped]
+    assert seen and all(ids in groups.values() for ids in seen)
+    assert groups["actor"] in seen
+    # the actor's clip leaves out the shared encoder, which its optimiser does not step
+    assert not groups["actor"] & {id(p) for p in agent.critic.features_extractor.parameters()}

@@ -245,11 +245,13 @@ class NaNRewardAfter(gym.Wrapper):
         return obs, (float("nan") if self.count > self.after else reward), terminated, truncated, info
 
 
-def test_non_finite_losses_stop_training_with_a_clear_message():
+def test_a_non_finite_reward_is_refused_where_it_enters_naming_the_env_domain_and_step():
     env = DummyVecEnv([lambda: NaNRewardAfter(gym.make(ENV_ID, obs_type="state"), after=150)])
     model = SGFD_SAC("MlpPolicy", env, n_domains=1, **TINY)
-    with pytest.raises(RuntimeError, match="non-finite critic loss"):
+    with pytest.raises(ValueError, match=r"non-finite reward \(nan\) at add 150 \(sub-env 0, domain 0\)"):
         model.learn(400)
+    stored = model.replay_buffer.rewards[: model.replay_buffer.pos]
+    assert model.replay_buffer.pos == 150 and np.isfinite(stored).all()
 
 
 @pytest.mark.parametrize(
