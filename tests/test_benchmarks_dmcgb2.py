@@ -158,5 +158,5 @@ def distance_to_train(env_id, split, seeds=range(4)):
 def test_hard_modes_are_farther_from_train_than_easy_ones():
     env_id = "DMCGB2/cheetah-run-v0"
     for family in ("rotate", "shift", "rotate_shift", "color", "video", "color_video"):
-        easy, hard = (distance_to_train(env_id, f"{family}_{d}", seeds=range(6)) for d in ("easy", "hard"))
+        easy, hard = (distance_to_train(env_id, f"{family}_{d}", seeds=range(3)) for d in ("easy", "hard"))
         assert 0 < easy < hard, family
