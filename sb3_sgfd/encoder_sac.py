@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
+from collections.abc import Iterable
 from typing import Any, ClassVar
 
 import numpy as np
@@ -373,8 +374,8 @@ class EncoderSAC(SAC):
         self.logger.record("train/critic_loss", np.mean(critic_losses))
         if len(ent_coef_losses) > 0:
             self.logger.record("train/ent_coef_loss", np.mean(ent_coef_losses))
-        for key, values in self._stats.items():  # +
-            self.logger.record(key, mean_of(values))
+        for key, value in zip(self._stats, means_of(self._stats.values(), self.device), strict=True):  # + one read
+            self.logger.record(key, value)
 
     def _target_q_values(
         self, next_observations: th.Tensor, replay_data: Any, ent_coef: th.Tensor, discounts: th.Tensor | float
@@ -491,9 +492,10 @@ def polyak_pairs(pairs: list[tuple[th.Tensor, th.Tensor]], tau: float) -> None:
             th.add(target_param, param, alpha=tau, out=target_param)
 
 
-def mean_of(values: list[float | th.Tensor]) -> float:
-    """The mean of logged figures, with one host transfer for tensors."""
-    return float(th.stack([th.as_tensor(value, dtype=th.float32) for value in values]).mean().item())
+def means_of(figures: Iterable[list[float | th.Tensor]], device: th.device) -> list[float]:
+    """The mean of each list of logged figures (0-d tensors on ``device``, or numbers), read in one host transfer."""
+    means = [th.stack([th.as_tensor(v, dtype=th.float32, device=device) for v in values]).mean() for values in figures]
+    return th.stack(means).tolist() if means else []
 
 
 def finite(value: float, what: str, update_index: int) -> float:

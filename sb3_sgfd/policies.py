@@ -14,11 +14,13 @@ from typing import Any
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.distributions import SquashedDiagGaussianDistribution
 from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.sac.policies import LOG_STD_MAX, LOG_STD_MIN, Actor, SACPolicy
 from torch import nn
+from torch.distributions import Normal
 
 
 class PixelEncoder(BaseFeaturesExtractor):
@@ -121,10 +123,25 @@ class AMBSEncoder(BaseFeaturesExtractor):
         return self.scaled(self.embed(observations))
 
 
+class SquashedGaussian(SquashedDiagGaussianDistribution):
+    """SB3's tanh-squashed diagonal Gaussian without torch.distributions' argument validation, whose checks of the
+    mean, the std and each sample are a host read apiece (six per SAC gradient step on a GPU); the parameters
+    come from the actor's own layers, and non-finite losses are caught where SAC logs them. Same values."""
+
+    def proba_distribution(self, mean_actions: th.Tensor, log_std: th.Tensor) -> SquashedGaussian:
+        self.distribution = Normal(mean_actions, th.ones_like(mean_actions) * log_std.exp(), validate_args=False)
+        return self
+
+
 class DetachedEncoderActor(Actor):
     """SB3's SAC actor, reading the shared encoder's features without backpropagating into it. Its distribution
     can also be taken from features already computed (``*_of_features``): the critic's encoding of the batch
     serves the actor too, instead of a second pass of the encoder."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if not self.use_sde:
+            self.action_dist = SquashedGaussian(self.action_dist.action_dim)  # type: ignore[assignment]
 
     def extract_features(  # type: ignore[override]
         self, obs: PyTorchObs, features_extractor: BaseFeaturesExtractor

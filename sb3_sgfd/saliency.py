@@ -209,6 +209,7 @@ def train_classifier(
     optimizer: torch.optim.Optimizer,
     batches: Iterable[tuple[Tensor, Tensor]],
     stop_accuracy: float | None = None,
+    first_below: bool = False,
 ) -> tuple[Tensor, int]:
     """The domain classifier's training loop (Algorithm 1, lines 7-13): each batch is scored first, and the
     loop stops at the first one classified with accuracy >= ``stop_accuracy``; otherwise one cross-entropy
@@ -219,15 +220,18 @@ def train_classifier(
     :param optimizer: optimiser of the classifier's parameters
     :param batches: (features (n, d), domain labels (n,)) pairs, e.g. detached encoder features
     :param stop_accuracy: accuracy that ends training; None trains on every batch
-    :return: the accuracy of the last batch scored (a 0-d tensor; 0 if there was none) and the steps taken
+    :param first_below: the first batch is known to score below ``stop_accuracy`` (no host read to check it)
+    :return: the accuracy of the last batch scored (a 0-d tensor; 0 if there was none) and the steps taken; with
+        ``stop_accuracy``, fewer steps than batches means it was reached
     """
     accuracy, steps = torch.zeros(()), 0
-    for z, domains in batches:
+    for index, (z, domains) in enumerate(batches):
         _check_features(z, finite=False)
         _check_domains(domains, z.shape[0])
         logits = classifier(z)  # one forward pass scores the batch and, below the threshold, trains on it
         accuracy = _accuracy(logits.detach().argmax(dim=1), domains)
-        if stop_accuracy is not None and bool(accuracy >= stop_accuracy):
+        known_below = first_below and index == 0
+        if stop_accuracy is not None and not known_below and bool(accuracy >= stop_accuracy):
             break
         loss = F.cross_entropy(logits, domains)
         optimizer.zero_grad()

@@ -121,12 +121,15 @@ class PaperWeighting(SampleWeighting):
                 self.classifier, z, domains, temperature=self.temperature, smoothing=self.smoothing
             )
         if self.classifier_iters > 0 and step.update_index % self.classifier_interval == 0:
-            if accuracy is None or bool(accuracy < self.accuracy_threshold):
+            # one host read per round: whether this batch's score is below the threshold
+            below = accuracy is not None and bool(accuracy < self.accuracy_threshold)
+            if accuracy is None or below:
                 batches = self._classifier_batches(z, domains, len(z), step.fresh_features)
-                accuracy, _ = train_classifier(
-                    self.classifier, self.classifier_optimizer, batches, self.accuracy_threshold
+                accuracy, steps = train_classifier(
+                    self.classifier, self.classifier_optimizer, batches, self.accuracy_threshold, first_below=below
                 )
-            self.ready = self.ready or bool(accuracy >= self.accuracy_threshold)
+                # a batch scored at the threshold stops the loop before its step
+                self.ready = self.ready or steps < self.classifier_iters
         elif accuracy is None:
             with torch.no_grad():
                 accuracy = _accuracy(self.classifier(z).argmax(dim=1), domains)
