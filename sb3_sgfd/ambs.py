@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 import torch as th
-from stable_baselines3.common.preprocessing import preprocess_obs
 from torch.nn import functional as F
 
 from sb3_sgfd.augmentation import random_shift
@@ -21,7 +20,7 @@ from sb3_sgfd.bisimulation import (
 )
 from sb3_sgfd.encoder_sac import EncoderSAC
 from sb3_sgfd.policies import AMBSEncoder
-from sb3_sgfd.representation import Batch, Representation, register, step
+from sb3_sgfd.representation import Agent, Batch, Representation, register, step
 from sb3_sgfd.validation import check_choice, check_non_negative
 
 TRANSITION_MODELS = {"probabilistic": ProbabilisticTransitionModel, "deterministic": DeterministicTransitionModel}
@@ -84,7 +83,7 @@ class AMBSRepresentation(Representation):
         self.hidden_dim, self.metric_hidden_dim = hidden_dim, metric_hidden_dim
         self.encoder_lr, self.decoder_lr, self.decoder_weight_decay = encoder_lr, decoder_lr, decoder_weight_decay
 
-    def setup(self, model: EncoderSAC) -> None:
+    def setup(self, model: Agent) -> None:
         encoder = model.critic.features_extractor
         if not isinstance(encoder, AMBSEncoder):
             raise ValueError(
@@ -110,7 +109,7 @@ class AMBSRepresentation(Representation):
             weight_decay=self.decoder_weight_decay,
         )
 
-    def update(self, model: EncoderSAC, batch: Batch) -> dict[str, th.Tensor]:
+    def update(self, model: Agent, batch: Batch) -> dict[str, th.Tensor]:
         encoder: AMBSEncoder = model.critic.features_extractor  # type: ignore[assignment]
         data = batch.replay_data
         observations = batch.observations[0]
@@ -120,10 +119,10 @@ class AMBSRepresentation(Representation):
             second_view = random_shift(observations, model.augmentation_pad, self.generator)
         else:
             second_view = observations
-        h = encoder.embed(self._preprocess(model, observations))
-        aug_h = encoder.embed(self._preprocess(model, second_view))
+        h = encoder.embed(model.preprocess(observations))
+        aug_h = encoder.embed(model.preprocess(second_view))
         with th.no_grad():
-            next_h = encoder.embed(self._preprocess(model, batch.next_observations[0]))
+            next_h = encoder.embed(model.preprocess(batch.next_observations[0]))
             # the actor reads these features (scaled by the ratio): no second pass of the encoder
             actor_actions = model.actor.action_of_features(encoder.scaled(h), deterministic=True)
             h_dynamics = split_halves(h, encoder.reward_dim)[1]
@@ -157,10 +156,6 @@ class AMBSRepresentation(Representation):
             "reward_loss": reward_loss.detach(),
             "reward_weight": encoder.reward_weight().detach(),
         }
-
-    @staticmethod
-    def _preprocess(model: EncoderSAC, observations: th.Tensor) -> th.Tensor:
-        return preprocess_obs(observations, model.observation_space, normalize_images=model.policy.normalize_images)
 
 
 class AMBS(EncoderSAC):

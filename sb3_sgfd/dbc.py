@@ -15,7 +15,7 @@ from sb3_sgfd.bisimulation import (
     gaussian_nll,
 )
 from sb3_sgfd.encoder_sac import EncoderSAC
-from sb3_sgfd.representation import Batch, Representation, register, step
+from sb3_sgfd.representation import Agent, Batch, Representation, register, step
 from sb3_sgfd.validation import check_choice, check_non_negative
 
 #: DBC's metric forms (``DBCRepresentation(metric=...)``): its authors' code's, and its paper's.
@@ -61,7 +61,7 @@ class DBCRepresentation(Representation):
         self.hidden_dim = hidden_dim
         self.encoder_lr, self.decoder_lr, self.decoder_weight_decay = encoder_lr, decoder_lr, decoder_weight_decay
 
-    def setup(self, model: EncoderSAC) -> None:
+    def setup(self, model: Agent) -> None:
         features_dim = model.critic.features_extractor.features_dim
         action_dim = model.action_space.shape[0]
         self.transition = ProbabilisticTransitionModel(features_dim, action_dim, self.hidden_dim)
@@ -73,7 +73,7 @@ class DBCRepresentation(Representation):
             weight_decay=self.decoder_weight_decay,
         )
 
-    def update(self, model: EncoderSAC, batch: Batch) -> dict[str, th.Tensor]:
+    def update(self, model: Agent, batch: Batch) -> dict[str, th.Tensor]:
         critic = model.critic
         data = batch.replay_data
         z = critic.extract_features(batch.observations[0], critic.features_extractor)

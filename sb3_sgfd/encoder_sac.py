@@ -28,7 +28,7 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.preprocessing import is_image_space
+from stable_baselines3.common.preprocessing import is_image_space, preprocess_obs
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.sac import SAC
@@ -456,6 +456,10 @@ class EncoderSAC(SAC):
         if self.max_grad_norm is not None:
             parameters = [param for group in optimizer.param_groups for param in group["params"]]
             th.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
+
+    def preprocess(self, observations: th.Tensor) -> th.Tensor:
+        """Observations as the buffer returns them, as the encoder takes them (SB3's ``preprocess_obs``)."""
+        return preprocess_obs(observations, self.observation_space, normalize_images=self.policy.normalize_images)
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """The critic's encoder features z of a batch of observations (as the buffer returns them), without gradient."""

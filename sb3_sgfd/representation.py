@@ -1,25 +1,54 @@
-"""What an encoder objective (DBC, AMBS, TED, SGQN) adds to SAC, as a part that ``EncoderSAC`` runs.
+"""What an encoder objective (DBC, AMBS, TED, SGQN) adds to SAC, as a part that ``Agent`` runs.
 
 A representation objective owns its models (a dynamics model, a temporal classifier, an attribution decoder)
-and their optimisers. ``EncoderSAC.train`` calls it at two points, so that any objective combines with any
+and their optimisers. ``Agent.train`` calls it at two points, so that any objective combines with any
 sample weighting (SGFD) without a copy of the training loop:
 
 - ``critic_loss``: a term added to the critic's loss (SGQN's consistency);
 - ``update``: its own optimisation step, right after the critic's (DBC, AMBS, TED, SGQN's predictor).
 
-Objectives register under a name (``@register("ambs")``), the value of ``EncoderSAC(representation=...)``.
+Objectives register under a name (``@register("ambs")``), the value of ``Agent(representation=...)``.
+They see the algorithm through :class:`Agent`, the part of it they may use, as SB3's policies never import
+their algorithm.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple
+from typing import Any, ClassVar, NamedTuple, Protocol
 
 import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import ContinuousCritic
 from torch import nn
 
-if TYPE_CHECKING:
-    from sb3_sgfd.encoder_sac import EncoderSAC
+from sb3_sgfd.policies import DetachedEncoderActor
+
+
+class Agent(Protocol):
+    """What an objective may use of the algorithm it trains with (``Agent`` is one)."""
+
+    #: the critic: its encoder (``features_extractor``, shared with the actor) and Q heads
+    critic: ContinuousCritic
+    critic_target: ContinuousCritic
+    actor: DetachedEncoderActor
+    observation_space: spaces.Space
+    action_space: spaces.Box
+    gamma: float
+    augmentation_views: int
+    augmentation_pad: int
+
+    def preprocess(self, observations: th.Tensor) -> th.Tensor:
+        """Observations as the buffer returns them, as the encoder takes them (images scaled to [0, 1])."""
+        ...
+
+    def augment(self, observations: th.Tensor) -> list[th.Tensor]:
+        """The algorithm's random-shift views of a batch (the batch itself without augmentation)."""
+        ...
+
+    def record(self, key: str, value: float | th.Tensor) -> None:
+        """Log a figure of this gradient step."""
+        ...
 
 REPRESENTATIONS: dict[str, type[Representation]] = {}
 
@@ -49,14 +78,14 @@ class Representation(nn.Module):
     #: The objective needs the replay buffer to return ``same_episode_observations`` (TED).
     needs_same_episode: ClassVar[bool] = False
 
-    def setup(self, model: EncoderSAC) -> None:
+    def setup(self, model: Agent) -> None:
         """Build the models and optimisers once the SAC model exists.
 
         :param model: the algorithm (its policy, action space and device are set)
         """
 
     def critic_loss(
-        self, model: EncoderSAC, observations: th.Tensor, actions: th.Tensor, q_values: tuple[th.Tensor, ...]
+        self, model: Agent, observations: th.Tensor, actions: th.Tensor, q_values: tuple[th.Tensor, ...]
     ) -> th.Tensor | None:
         """A term added to the critic's loss, or None.
 
@@ -67,7 +96,7 @@ class Representation(nn.Module):
         """
         return None
 
-    def update(self, model: EncoderSAC, batch: Batch) -> dict[str, th.Tensor]:
+    def update(self, model: Agent, batch: Batch) -> dict[str, th.Tensor]:
         """The objective's own step, after the critic's; returns figures to log (scalars, kept on device).
 
         :param model: the algorithm
@@ -81,7 +110,7 @@ class Representation(nn.Module):
 
 
 def register(name: str) -> Callable[[type[Representation]], type[Representation]]:
-    """Class decorator: make an objective available as ``EncoderSAC(representation=name)``.
+    """Class decorator: make an objective available as ``Agent(representation=name)``.
 
     :param name: the objective's name, e.g. ``"ambs"``
     """

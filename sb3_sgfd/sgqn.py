@@ -19,7 +19,7 @@ from sb3_sgfd.attribution import (
     overlay,
 )
 from sb3_sgfd.encoder_sac import EncoderSAC, image_shape
-from sb3_sgfd.representation import Batch, Representation, register, step
+from sb3_sgfd.representation import Agent, Batch, Representation, register, step
 from sb3_sgfd.validation import check_non_negative
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
@@ -75,7 +75,7 @@ class SGQNRepresentation(Representation):
         self.aux_lr, self.aux_update_interval, self.overlay_alpha = aux_lr, aux_update_interval, overlay_alpha
         self.overlay_images, self.overlay_dir = overlay_images, overlay_dir
 
-    def setup(self, model: EncoderSAC) -> None:
+    def setup(self, model: Agent) -> None:
         channels, height, width = image_shape(model.observation_space)
         if channels % 3 != 0:
             raise ValueError(f"SGQN expects stacked RGB frames (channels a multiple of 3), got {channels} channels")
@@ -86,13 +86,13 @@ class SGQNRepresentation(Representation):
         images = self.overlay_images if self.overlay_images is not None else read_images(Path(self.overlay_dir))
         self.register_buffer("bank", image_bank(images, height, width), persistent=False)
 
-    def attribution_mask(self, model: EncoderSAC, observations: th.Tensor, actions: th.Tensor) -> th.Tensor:
+    def attribution_mask(self, model: Agent, observations: th.Tensor, actions: th.Tensor) -> th.Tensor:
         """M: the top-(1 - quantile) pixels of each frame by guided backprop of Q1 (the critic as it is now)."""
         attribution = guided_backprop(lambda obs: model.critic(obs, actions)[0], observations, model.critic)
         return attribution_mask(attribution, channels_per_frame=3, quantile=self.quantile)
 
     def critic_loss(
-        self, model: EncoderSAC, observations: th.Tensor, actions: th.Tensor, q_values: tuple[th.Tensor, ...]
+        self, model: Agent, observations: th.Tensor, actions: th.Tensor, q_values: tuple[th.Tensor, ...]
     ) -> th.Tensor | None:
         mask = self.attribution_mask(model, observations, actions)
         masked_q_values = model.critic(mask_observations(observations, mask, self.generator), actions)
@@ -100,7 +100,7 @@ class SGQNRepresentation(Representation):
         model.record("sgqn/consistency_loss", loss.detach())
         return self.consistency_coef * loss
 
-    def update(self, model: EncoderSAC, batch: Batch) -> dict[str, th.Tensor]:
+    def update(self, model: Agent, batch: Batch) -> dict[str, th.Tensor]:
         if batch.update_index % self.aux_update_interval != 0:
             return {}
         observations, actions = batch.observations[0], batch.replay_data.actions

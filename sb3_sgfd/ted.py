@@ -7,7 +7,7 @@ from typing import Any, ClassVar
 import torch as th
 
 from sb3_sgfd.encoder_sac import EncoderSAC
-from sb3_sgfd.representation import Batch, Representation, register, step
+from sb3_sgfd.representation import Agent, Batch, Representation, register, step
 from sb3_sgfd.temporal import TEDClassifier, ted_loss
 from sb3_sgfd.validation import check_non_negative
 
@@ -32,12 +32,12 @@ class TEDRepresentation(Representation):
         check_non_negative(ted_coef=ted_coef, ted_lr=ted_lr)
         self.ted_coef, self.ted_lr = ted_coef, ted_lr
 
-    def setup(self, model: EncoderSAC) -> None:
+    def setup(self, model: Agent) -> None:
         encoder = model.critic.features_extractor
         self.classifier = TEDClassifier(encoder.features_dim)
         self.optimizer = th.optim.Adam([*self.classifier.parameters(), *encoder.parameters()], lr=self.ted_lr)
 
-    def update(self, model: EncoderSAC, batch: Batch) -> dict[str, th.Tensor]:
+    def update(self, model: Agent, batch: Batch) -> dict[str, th.Tensor]:
         critic, target = model.critic, model.critic_target
         same_episode = batch.replay_data.same_episode_observations
         if same_episode is None:
