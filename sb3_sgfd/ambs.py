@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 import torch as th
+from stable_baselines3.sac.policies import SACPolicy
 from torch.nn import functional as F
 
 from sb3_sgfd.augmentation import random_shift
@@ -19,7 +20,7 @@ from sb3_sgfd.bisimulation import (
     split_halves,
 )
 from sb3_sgfd.encoder_sac import EncoderSAC
-from sb3_sgfd.policies import AMBSEncoder
+from sb3_sgfd.policies import AMBSEncoder, AMBSPolicy
 from sb3_sgfd.representation import Agent, Batch, Representation, register, step
 from sb3_sgfd.validation import check_choice, check_non_negative
 
@@ -56,6 +57,8 @@ class AMBSRepresentation(Representation):
     :param decoder_lr: Adam learning rate of the transition model, reward decoder and meta-learners
     :param decoder_weight_decay: Their weight decay (AMBS: 0)
     """
+
+    policy_aliases: ClassVar[dict[str, type[SACPolicy]]] = {"CnnPolicy": AMBSPolicy, "MlpPolicy": AMBSPolicy}
 
     def __init__(
         self,

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 import torch as th
+from stable_baselines3.sac.policies import SACPolicy
 from torch.nn import functional as F
 
 from sb3_sgfd.bisimulation import (
@@ -15,6 +16,7 @@ from sb3_sgfd.bisimulation import (
     gaussian_nll,
 )
 from sb3_sgfd.encoder_sac import EncoderSAC
+from sb3_sgfd.policies import EncoderMlpPolicy
 from sb3_sgfd.representation import Agent, Batch, Representation, register, step
 from sb3_sgfd.validation import check_choice, check_non_negative
 
@@ -42,6 +44,9 @@ class DBCRepresentation(Representation):
     :param decoder_lr: Adam learning rate of the transition model and reward decoder
     :param decoder_weight_decay: Their weight decay (DBC's scripts: 1e-7)
     """
+
+    # on states, a learned MLP encoder: the objective trains it
+    policy_aliases: ClassVar[dict[str, type[SACPolicy]]] = {"MlpPolicy": EncoderMlpPolicy}
 
     def __init__(
         self,

@@ -37,7 +37,7 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_sgfd.augmentation import random_shift
 from sb3_sgfd.buffers import DomainReplayBuffer
 from sb3_sgfd.policies import AMBSPolicy, CnnPolicy, EncoderMlpPolicy, MlpPolicy, SGFDPolicy
-from sb3_sgfd.representation import Batch, Representation, make_representation
+from sb3_sgfd.representation import REPRESENTATIONS, Batch, Representation, make_representation
 from sb3_sgfd.validation import check_positive_int
 
 
@@ -174,6 +174,14 @@ class EncoderSAC(SAC):
             device=device,
             _init_setup_model=_init_setup_model,
         )
+
+    def _get_policy_from_name(self, policy_name: str) -> type[BasePolicy]:
+        # The objective's policies first: AMBS("CnnPolicy", env) is AMBS's AMBSPolicy, DBC("MlpPolicy", env) an MLP
+        # encoder it can train.
+        objective = REPRESENTATIONS.get(self.representation) if self.representation is not None else None
+        if objective is not None and policy_name in objective.policy_aliases:
+            return objective.policy_aliases[policy_name]
+        return super()._get_policy_from_name(policy_name)
 
     def _setup_model(self) -> None:
         # SB3 builds the replay buffer in super()._setup_model(): the objective's needs go in first.

@@ -20,6 +20,7 @@ from typing import Any, ClassVar, NamedTuple, Protocol
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import ContinuousCritic
+from stable_baselines3.sac.policies import SACPolicy
 from torch import nn
 
 from sb3_sgfd.policies import DetachedEncoderActor
@@ -77,6 +78,8 @@ class Representation(nn.Module):
     name: ClassVar[str] = ""
     #: The objective needs the replay buffer to return ``same_episode_observations`` (TED).
     needs_same_episode: ClassVar[bool] = False
+    #: The usual policy names mapped to the policies this objective trains (``AMBS("CnnPolicy", env)``).
+    policy_aliases: ClassVar[dict[str, type[SACPolicy]]] = {}
 
     def setup(self, model: Agent) -> None:
         """Build the models and optimisers once the SAC model exists.

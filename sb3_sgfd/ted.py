@@ -5,8 +5,10 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 import torch as th
+from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_sgfd.encoder_sac import EncoderSAC
+from sb3_sgfd.policies import EncoderMlpPolicy
 from sb3_sgfd.representation import Agent, Batch, Representation, register, step
 from sb3_sgfd.temporal import TEDClassifier, ted_loss
 from sb3_sgfd.validation import check_non_negative
@@ -26,6 +28,9 @@ class TEDRepresentation(Representation):
     """
 
     needs_same_episode: ClassVar[bool] = True
+
+    # on states, a learned MLP encoder: the objective trains it
+    policy_aliases: ClassVar[dict[str, type[SACPolicy]]] = {"MlpPolicy": EncoderMlpPolicy}
 
     def __init__(self, ted_coef: float = 1.0, ted_lr: float = 1e-3) -> None:
         super().__init__()

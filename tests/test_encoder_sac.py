@@ -292,3 +292,19 @@ def test_gradient_clipping_counts_only_the_parameters_each_optimiser_steps(monke
     assert groups["actor"] in seen
     # the actor's clip leaves out the shared encoder, which its optimiser does not step
     assert not groups["actor"] & {id(p) for p in agent.critic.features_extractor.parameters()}
+
+
+def test_each_agent_maps_the_usual_policy_names_to_its_own_policies():
+    from sb3_sgfd import EncoderMlpPolicy
+    from sb3_sgfd.policies import AMBSEncoder, MlpEncoder
+
+    assert type(AMBS("CnnPolicy", pixel_env(), **TINY).policy) is AMBSPolicy
+    on_states = AMBS("MlpPolicy", state_env(), augmentation_views=0, **TINY)
+    assert type(on_states.policy) is AMBSPolicy and isinstance(on_states.critic.features_extractor, AMBSEncoder)
+    assert isinstance(on_states.critic.features_extractor.trunk, MlpEncoder)
+    for algo in (DBC, TED):
+        assert type(algo("MlpPolicy", state_env(), augmentation_views=0, **TINY).policy) is EncoderMlpPolicy
+    assert type(DBC("CnnPolicy", pixel_env(), **TINY).policy) is CnnPolicy
+    sgfd_on_ambs = SGFD_SAC("CnnPolicy", pixel_env(), representation="ambs", **TINY)
+    assert type(sgfd_on_ambs.policy) is AMBSPolicy
+    assert type(SGFD_SAC("MlpPolicy", state_env(), **TINY).policy) is MlpPolicy
