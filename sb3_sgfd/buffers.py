@@ -12,6 +12,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.preprocessing import get_obs_shape
 from stable_baselines3.common.vec_env import VecNormalize
 
+from sb3_sgfd.transfer import BatchTransfer
 from sb3_sgfd.validation import check_positive_int, check_transitions
 
 try:
@@ -420,8 +421,6 @@ class DomainReplayBuffer(ReplayBuffer):
                 pairs = list(zip(np.asarray(batch_inds)[bad].tolist(), env_indices[bad].tolist(), strict=True))
                 raise ValueError(f"(batch_inds, env_indices) pairs {pairs} hold no sampleable transition")
 
-        # Stacks rebuilt from frames are new arrays that nothing else references: no copy needed.
-        copy_obs = self.frame_stack is None
         if self.frame_stack is not None:
             obs, next_obs = self._rebuild_stacks(batch_inds, env_indices)
         else:
@@ -437,19 +436,25 @@ class DomainReplayBuffer(ReplayBuffer):
             (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1),
             self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env),
         )
-        copies = (copy_obs, True, copy_obs, True, True)
-        same_episode_obs = None
+        arrays = [*data, self.domains[batch_inds, env_indices]]
         if self.same_episode_negatives:
             other_slots, other_envs = self._same_episode_indices(batch_inds, env_indices)
-            # A gather (or a rebuilt stack) is a new array: no copy needed.
-            same_episode_obs = self.to_torch(
-                self._normalize_obs(self._observations_at(other_slots, other_envs), env), copy=False
-            )
+            arrays.append(self._normalize_obs(self._observations_at(other_slots, other_envs), env))
+        # Every array here is the batch's own gather (or rebuilt stack): one transfer, no defensive copies.
+        tensors = self._batch_transfer(arrays)
         return DomainReplayBufferSamples(
-            *(self.to_torch(array, copy=copy) for array, copy in zip(data, copies, strict=True)),
-            domains=self.to_torch(self.domains[batch_inds, env_indices]),
-            same_episode_observations=same_episode_obs,
+            *tensors[:5],
+            domains=tensors[5],
+            same_episode_observations=tensors[6] if self.same_episode_negatives else None,
         )
+
+    @property
+    def _batch_transfer(self) -> BatchTransfer:
+        # Made on first use, and again when the buffer moves (SB3's load_replay_buffer sets the model's device).
+        transfer = getattr(self, "_transfer", None)
+        if transfer is None or transfer.device != th.device(self.device):
+            transfer = self._transfer = BatchTransfer(self.device)
+        return transfer
 
     def episode_ids(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> np.ndarray:
         """

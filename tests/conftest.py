@@ -9,3 +9,15 @@ import sgfd_envs  # noqa: F401
 # The networks in these tests are tiny: torch's intra-op threads only fight each other (and the
 # renderer) for the CPU. One thread makes the suite several times faster on 2 cores.
 torch.set_num_threads(1)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests marked ``cuda`` skip, with the reason said, where no CUDA device is there."""
+    if torch.cuda.is_available():
+        return
+    import pytest
+
+    skip = pytest.mark.skip(reason="needs a CUDA device (none here)")
+    for item in items:
+        if "cuda" in item.keywords:
+            item.add_marker(skip)
