@@ -469,32 +469,50 @@ def mean_distances(distance: Callable[[Tensor, Tensor], Tensor]) -> dict[str, fl
         }
 
 
+def measured(method: str, steps: int, coef: float, predictable: bool = False) -> dict[str, float]:
+    """``mean_distances`` of a training run, in float64: float32 rounding, which differs between CPUs (AVX2 or
+    not, thread counts), grows over the run into other outcomes of these toys (measured: the random distractor
+    without the metric ended at y / x = 2.8 on one CPU and 0.28 on another); in float64 both agree to 10%."""
+    default = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float64)
+    try:
+        return mean_distances(train(method, steps, coef, predictable))
+    finally:
+        torch.set_default_dtype(default)
+
+
+# Margins from float64 runs with ATEN_CPU_CAPABILITY=default and avx2 on one thread, as conftest.py runs the suite
+# (the largest y / x):
+# DBC 0.115 (random), 0.085 (predictable); without the metric, predictable 6.4; AMBS 0.26, (y - self) / (x - self)
+# 0.053; AMBS without the metric 1.00.
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("predictable", [False, True], ids=["random-distractor", "predictable-distractor"])
 def test_dbc_ignores_the_distractor(predictable):
-    d = mean_distances(train("dbc", 1000 if predictable else 600, coef=1.0, predictable=predictable))
+    d = measured("dbc", 1000 if predictable else 600, coef=1.0, predictable=predictable)
     assert d["y"] < 0.3 * d["x"], d
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("predictable", [False, True], ids=["random-distractor", "predictable-distractor"])
-def test_dbc_fails_without_the_metric(predictable):
-    # Without the bisimulation loss (300 steps) the transition NLL shrinks the whole encoding (measured: y 0.034
-    # against x 0.012 for the random distractor), and a predictable distractor stays encoded (3.5 against 0.90).
-    d = mean_distances(train("dbc", 300, coef=0.0, predictable=predictable))
-    assert d["y"] > d["x"], d
+def test_dbc_fails_without_the_metric_on_a_predictable_distractor():
+    # Without the bisimulation loss (300 steps) a distractor the dynamics model can follow stays encoded (y / x
+    # 6.4). An unpredictable one the transition NLL drops by itself (y / x 0.08 in float64), so that case shows
+    # nothing about the metric.
+    d = measured("dbc", 300, coef=0.0, predictable=True)
+    assert d["y"] > 2 * d["x"], d
 
 
 @pytest.mark.slow
 def test_ambs_ignores_the_distractor():
-    d = mean_distances(train("ambs", 800, coef=1.0))
-    assert d["y"] < 0.3 * d["x"], d
+    d = measured("ambs", 800, coef=1.0)
+    assert d["y"] < 0.4 * d["x"], d
     # Most of what is left is the meta-learners' distance of a representation to itself, which nothing trains to
     # 0 (d(a, a) = f([a, a])^2); above it, the distractor adds next to nothing.
-    assert d["y"] - d["self"] < 0.1 * (d["x"] - d["self"]), d
+    assert d["y"] - d["self"] < 0.2 * (d["x"] - d["self"]), d
 
 
 def test_ambs_without_metric_learns_no_distance():
     # At coefficient 0 the meta-learners get no gradient: their distance does not tell x from y (a short run suffices).
-    d = mean_distances(train("ambs", 200, coef=0.0))
+    d = measured("ambs", 200, coef=0.0)
     assert d["y"] > 0.8 * d["x"], d
