@@ -261,6 +261,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--benchmark-steps", type=int, default=100, help="agent steps per round of each benchmark row (theirs are slow)"
     )
+    parser.add_argument("--warmup", type=int, default=20, help="untimed agent steps of each method first")
     args = parser.parse_args(argv)
     if task_entry(args.env).variation != "background":
         parser.error(f"--env must be a background id, one of {[i for i in sgfd_envs.SGFD_IDS if '/MT-' not in i]}")
@@ -271,7 +272,7 @@ def main(argv: list[str] | None = None) -> None:
         f"ours   {args.mt_env} (pixels)": gym_stepper(gym.make(args.mt_env), seed=0),
     }
     for step in methods.values():  # warm-up: contexts, caches, background textures
-        for _ in range(20):
+        for _ in range(args.warmup):
             step()
     rates: dict[str, list[float]] = {name: [] for name in methods}
     for _ in range(args.rounds):
@@ -305,7 +306,7 @@ def main(argv: list[str] | None = None) -> None:
     }
     for ours_step, theirs_step in pairs.values():
         for step in (ours_step, theirs_step):
-            for _ in range(5):
+            for _ in range(min(5, args.warmup)):
                 step()
     pair_rates: dict[str, tuple[list[float], list[float]]] = {name: ([], []) for name in pairs}
     for _ in range(args.rounds):

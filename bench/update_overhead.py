@@ -10,7 +10,9 @@ Two policies:
 
 With ``agents``, the paper's other agents on the same pixels and CnnPolicy encoder (AMBS with its
 ratio-scaled one): DBC, AMBS, SGFD on AMBS (the paper's agent, steady phase), TED and SGQN, each with its
-objective and augmentation as in zoo/hyperparams, next to SAC.
+objective and augmentation as in zoo/hyperparams, next to SAC; each twice: as it trains (the actor's Q on
+the critic's features of the step) and "before", with ``actor_reuses_features=False`` (the batch encoded
+again for the actor's Q, as SB3 does and as this package did before).
 
 SGFD is timed in three phases: ``steady`` (weights on, the classifier above its threshold, so not training),
 ``classifier`` (the classifier training every step, weights off: the start of a run) and ``mixed`` (weights
@@ -53,8 +55,12 @@ def state_env() -> VecEnv:
     return sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", obs_type="state", observe_parameter=True)
 
 
+IMAGE_SIZE = [84]  # --image-size (the paper's 84; smaller only for a smoke run)
+
+
 def pixel_env() -> VecEnv:
-    return VecTransposeImage(VecFrameStack(sgfd_envs.make_domain_vec_env("SGFD/walker-walk-v0"), 3))
+    env = sgfd_envs.make_domain_vec_env("SGFD/walker-walk-v0", image_size=IMAGE_SIZE[0])
+    return VecTransposeImage(VecFrameStack(env, 3))
 
 
 POLICIES: dict[str, tuple[type, Callable[[], VecEnv], dict]] = {
@@ -77,22 +83,25 @@ def fill(model: BaseAlgorithm, n_steps: int, seed: int) -> None:
         obs = next_obs
 
 
+AGENT_NAMES = ("DBC", "AMBS", "SGFD on AMBS", "TED", "SGQN")
+
+
 def agents(env_factory: Callable[[], VecEnv], **common) -> dict[str, BaseAlgorithm]:
-    """The paper's other agents, with their objectives and augmentation (zoo/hyperparams), actor every step."""
+    """The paper's other agents, with their objectives and augmentation (zoo/hyperparams), actor every step, each
+    as it trains and "before" (the actor's Q on the batch encoded again, ``actor_reuses_features=False``)."""
     ambs = dict(augmentation_views=2, encoder_tau=0.05, max_grad_norm=40.0, representation="ambs")
-    return {
-        "DBC": DBC(CnnPolicy, env_factory(), actor_update_interval=1, **common),
-        "AMBS": AMBS(AMBSPolicy, env_factory(), actor_update_interval=1, **common),
-        "SGFD on AMBS": sgfd_in_phase("steady", AMBSPolicy, env_factory(), **ambs, **common),
-        "TED": TED(CnnPolicy, env_factory(), actor_update_interval=1, **common),
-        "SGQN": SGQN(
-            CnnPolicy,
-            env_factory(),
-            actor_update_interval=1,
-            representation_kwargs=dict(quantile=0.98, overlay_images=overlay_bank(84, 84)),
-            **common,
-        ),
-    }
+    sgqn = dict(quantile=0.98, overlay_images=overlay_bank(IMAGE_SIZE[0], IMAGE_SIZE[0]))
+    models: dict[str, BaseAlgorithm] = {}
+    for suffix, reuse in (("", True), (" (before)", False)):
+        each = dict(common, actor_reuses_features=reuse)
+        models[f"DBC{suffix}"] = DBC(CnnPolicy, env_factory(), actor_update_interval=1, **each)
+        models[f"AMBS{suffix}"] = AMBS(AMBSPolicy, env_factory(), actor_update_interval=1, **each)
+        models[f"SGFD on AMBS{suffix}"] = sgfd_in_phase("steady", AMBSPolicy, env_factory(), **ambs, **each)
+        models[f"TED{suffix}"] = TED(CnnPolicy, env_factory(), actor_update_interval=1, **each)
+        models[f"SGQN{suffix}"] = SGQN(
+            CnnPolicy, env_factory(), actor_update_interval=1, representation_kwargs=sgqn, **each
+        )
+    return models
 
 
 def sgfd_in_phase(phase: str, policy: type, env: VecEnv, classifier_interval: int = 1, **common) -> SGFD_SAC:
@@ -143,11 +152,13 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> None
     else:
         for phase in PHASES:
             models[f"SGFD {phase}"] = sgfd_in_phase(phase, policy, make_env(), args.classifier_interval, **common)
+    gpu = device.type == "cuda"
     for model in models.values():
         model._setup_learn(10**6)
         fill(model, args.fill, seed=0)
-        time_round(model, 2, args.batch_size, device)  # warm-up: allocator, first classifier steps
-    steps = args.round_steps or (20 if name == "mlp" else 2)
+        # warm-up: the allocator, the first classifier steps (and on a GPU, cuDNN's choice of kernels)
+        time_round(model, args.warmup or (20 if gpu else 2), args.batch_size, device)
+    steps = args.round_steps or ((200 if gpu else 20) if name == "mlp" else (50 if gpu else 2))
     times: dict[str, list[float]] = {key: [] for key in models}
     for _ in range(args.rounds):
         for key, model in models.items():
@@ -160,14 +171,21 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> None
     shape = models["SAC"].observation_space.shape
     schedule = "" if name == "agents" else f", SGFD's classifier_interval {args.classifier_interval}"
     print(f"\n## {name}: obs {shape}, batch {args.batch_size}, {args.rounds} rounds of {steps} steps{schedule}\n")
-    print(f"| {'update':<16} | {'ms per step':>11} | {'vs SAC':>6} | {'per-round quartiles':>19} |")
-    print(f"|{'-' * 18}|{'-' * 13}|{'-' * 8}|{'-' * 21}|")
+    width = max(len(key) for key in times)
+    print(f"| {'update':<{width}} | {'ms per step':>11} | {'vs SAC':>6} | {'per-round quartiles':>19} |")
+    print(f"|{'-' * (width + 2)}|{'-' * 13}|{'-' * 8}|{'-' * 21}|")
     for key, values in times.items():
         low, mid, high = round_ratio_quartiles(times, key, "SAC")
-        print(f"| {key:<16} | {1e3 * statistics.median(values):>11.2f} | {mid:>5.2f}x | {low:>8.2f} - {high:.2f}x |")
+        row = (
+            f"| {key:<{width}} | {1e3 * statistics.median(values):>11.2f} | {mid:>5.2f}x | {low:>8.2f} - {high:.2f}x |"
+        )
+        print(row)
     if name == "agents":
         ratio = round_ratio_quartiles(times, "SGFD on AMBS", "AMBS")[1]
         print(f"SGFD on AMBS / AMBS: {ratio:.2f}x (what the reweighting adds to the paper's agent)")
+        for agent in AGENT_NAMES:
+            low, mid, high = round_ratio_quartiles(times, agent, f"{agent} (before)")
+            print(f"{agent} / before: {mid:.2f}x ({low:.2f} - {high:.2f}) (the actor's Q on the step's features)")
     else:
         medians = {phase: round_ratio_quartiles(times, f"SGFD {phase}", "SAC")[1] for phase in PHASES}
         ratios = ", ".join(f"{phase} {ratio:.2f}x" for phase, ratio in medians.items())
@@ -213,7 +231,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--policies", nargs="+", choices=list(POLICIES), default=["mlp", "cnn"])
     parser.add_argument("--rounds", type=int, default=15, help="timed rounds per model")
-    parser.add_argument("--round-steps", type=int, help="gradient steps per round (default: mlp 20, pixels 2)")
+    parser.add_argument(
+        "--round-steps", type=int, help="gradient steps per round (default: mlp 20, pixels 2; on a GPU 200 and 50)"
+    )
+    parser.add_argument("--warmup", type=int, help="untimed gradient steps per model first (default 2; GPU 20)")
     parser.add_argument("--batch-size", type=int, default=128)
     parser.add_argument("--fill", type=int, default=300, help="vec-env steps of data (x4 domains)")
     parser.add_argument(
@@ -223,7 +244,9 @@ def main() -> None:
         help="SGFD's classifier_interval in the mlp and cnn rows (default 1, SGFD_SAC's; the official code: 20)",
     )
     parser.add_argument("--device", default="auto", help="cpu, cuda, or auto (cuda when available)")
+    parser.add_argument("--image-size", type=int, default=84, help="pixel side of the cnn and agents rows")
     args = parser.parse_args()
+    IMAGE_SIZE[0] = args.image_size
     device = th.device(
         "cuda" if args.device == "auto" and th.cuda.is_available() else args.device.replace("auto", "cpu")
     )
