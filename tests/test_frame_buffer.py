@@ -25,7 +25,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecFrameStack, VecTransposeImage
 
-import sb3_sgfd.buffers as sgfd_buffers
+import sb3_sgfd.buffers.replay as sgfd_buffers
 from sb3_sgfd.buffers import DomainReplayBuffer
 
 # Larger than any k * c stacked here, so that SB3 sees the stacks as channel-last images; not square, so
