@@ -1,3 +1,5 @@
+import pickle
+
 import numpy as np
 import pytest
 import torch as th
@@ -40,6 +42,20 @@ def test_sub_env_index_is_the_label_when_info_has_none():
         buffer.add(obs, obs, np.zeros((3, 2)), np.zeros(3), np.zeros(3), [{}, {}, {}])
     assert buffer.domains[:5].tolist() == [[0, 1, 2]] * 5
     assert buffer.stored_domains().tolist() == [0, 1, 2]
+
+
+def test_a_buffer_pickled_under_the_module_path_before_the_package_split_loads(monkeypatch: pytest.MonkeyPatch):
+    # Buffers pickled while the class lived in sb3_sgfd/buffers.py name it sb3_sgfd.buffers.DomainReplayBuffer, as
+    # the zoo's yaml does; pickle.dumps already refuses a name that does not lead back to the class.
+    buffer = DomainReplayBuffer(16, OBS_SPACE, ACTION_SPACE, device="cpu", n_envs=2)
+    fill(buffer, 5, lambda step: [1, 0])
+    with monkeypatch.context() as patch:
+        patch.setattr(DomainReplayBuffer, "__module__", "sb3_sgfd.buffers")
+        pickled = pickle.dumps(buffer)
+    assert b"sb3_sgfd.buffers" in pickled and b"sb3_sgfd.buffers.replay" not in pickled
+    loaded = pickle.loads(pickled)
+    assert type(loaded) is DomainReplayBuffer
+    assert np.array_equal(loaded.observations, buffer.observations) and loaded.stored_domains().tolist() == [0, 1]
 
 
 @pytest.mark.parametrize("bad", [-1, 1.5, "a"])

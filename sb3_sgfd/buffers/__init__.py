@@ -1,5 +1,11 @@
-"""Replay buffers: :class:`DomainReplayBuffer` and its batches (``sb3_sgfd.buffers.DomainReplayBuffer`` in yaml)."""
+"""
+Replay buffers: :class:`DomainReplayBuffer` (``sb3_sgfd.buffers.DomainReplayBuffer`` in yaml) and its batches.
 
-from sb3_sgfd.buffers.replay import DomainReplayBuffer, DomainReplayBufferSamples, domain_labels
+By concept: ``replay.py`` the buffer (SB3's ``ReplayBuffer`` plus the mixins below), ``domains.py`` the domain
+labels, ``frames.py`` the frame storage for frame stacks, ``episodes.py`` the episode index and TED's negatives.
+"""
+
+from sb3_sgfd.buffers.domains import domain_labels
+from sb3_sgfd.buffers.replay import DomainReplayBuffer, DomainReplayBufferSamples
 
 __all__ = ["DomainReplayBuffer", "DomainReplayBufferSamples", "domain_labels"]
