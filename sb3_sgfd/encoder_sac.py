@@ -474,6 +474,14 @@ class EncoderSAC(SAC):
         with th.no_grad():
             return self.critic.extract_features(observations, self.critic.features_extractor)
 
+    def generators(self) -> dict[str, th.Generator]:
+        """The generators this algorithm draws from beside the global ones, by name: what a checkpoint saves so
+        that a resumed run continues their streams (``zoo.training_state``)."""
+        generators = {"augmentation": self._augment_generator}
+        if self.representation_model is not None:
+            generators["representation"] = self.representation_model.generator
+        return generators
+
     def record(self, key: str, value: float | th.Tensor) -> None:
         """Log a figure of this gradient step; ``train`` logs the mean over its steps."""
         self._stats[key].append(value)

@@ -345,6 +345,10 @@ class SGFD_SAC(EncoderSAC):
         """
         return self.weighting.solve(z, generator)
 
+    def generators(self) -> dict[str, th.Generator]:
+        # the RFF generator is seeded anew at every update, but its state between updates is part of a resume too
+        return {**super().generators(), "weights": self.weighting.rff_generator}
+
     def _fresh_features(self, n_samples: int, augmented: bool) -> tuple[th.Tensor, th.Tensor]:
         """A fresh replay batch of ``n_samples``, encoded (of its first augmented view with ``augmented``), and
         its domain labels: the classifier's extra batches."""

@@ -414,6 +414,61 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         self._agent_steps += 1
         return self._observation(time_step.observation), float(reward), terminated, False, self._info()
 
+    # --- the state a resumed run continues from ---------------------------------------------------
+
+    @property
+    def state_unavailable(self) -> str | None:
+        """Why ``get_state`` cannot give this env's state, or None when it can."""
+        if self._distraction is not None and not hasattr(self._distraction, "get_state"):
+            return f"its distraction ({type(self._distraction).__name__}) keeps a state get_state does not take"
+        return None
+
+    def get_state(self) -> dict[str, Any]:
+        """Everything the env's next steps depend on: the simulator's integration state (MuJoCo's
+        ``mjSTATE_INTEGRATION``: positions, velocities, activations, controls, time and the solver's warm start),
+        dm_control's step counters, the task's and the env's random generators, the episode's agent steps and
+        background phase, and the distraction's generator. ``set_state`` on an env made with the same arguments
+        continues bit for bit. A distraction with state of its own beyond its generator (the benchmark ids')
+        must provide ``get_state``/``set_state``; without them this raises ``NotImplementedError``.
+        """
+        if self.state_unavailable is not None:
+            raise NotImplementedError(f"{self.spec.id if self.spec else 'this env'}: {self.state_unavailable}")
+        physics = self._dm_env.physics
+        distraction = None if self._distraction is None else self._distraction.get_state()
+        return {
+            "physics": physics.get_state(mujoco.mjtState.mjSTATE_INTEGRATION),
+            "dm_env": {"step_count": self._dm_env._step_count, "reset_next_step": self._dm_env._reset_next_step},
+            "task_random": self._dm_env.task.random.get_state(),
+            "np_random": self.np_random.bit_generator.state,
+            "agent_steps": self._agent_steps,
+            "background_phase": self._background_phase,
+            "distraction_random": None if self._distraction_rng is None else self._distraction_rng.bit_generator.state,
+            "distraction": distraction,
+        }
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Continue from ``get_state``'s state (see there).
+
+        :param state: what ``get_state`` returned, of an env made with the same arguments
+        """
+        physics = self._dm_env.physics
+        physics.set_state(np.asarray(state["physics"]), mujoco.mjtState.mjSTATE_INTEGRATION)
+        # dm_control ends every step with mj_step1 (the position- and velocity-dependent quantities, which its
+        # next step starts from): the same here.
+        mujoco.mj_step1(physics.model.ptr, physics.data.ptr)
+        self._dm_env._step_count = state["dm_env"]["step_count"]
+        self._dm_env._reset_next_step = state["dm_env"]["reset_next_step"]
+        self._dm_env.task.random.set_state(state["task_random"])
+        self.np_random.bit_generator.state = state["np_random"]
+        self._agent_steps = state["agent_steps"]
+        self._background_phase = state["background_phase"]
+        if state["distraction_random"] is not None:
+            self._distraction_rng = np.random.default_rng()
+            self._distraction_rng.bit_generator.state = state["distraction_random"]
+        if self._distraction is not None and state["distraction"] is not None:
+            self._distraction.set_state(state["distraction"])
+        self._last_frame = None
+
     def render(self) -> np.ndarray | None:
         """The current frame (the pixel observation, or a fresh render for state observations)."""
         if self.render_mode is None:

@@ -26,6 +26,7 @@ from sgfd_envs.benchmarks.media import check_data_dir, davis_folder
 from sgfd_envs.causal_world import CausalWorldEnv, make_causal_world_env
 from sgfd_envs.dmc import DMCEnv, DomainLabel, check_image_size
 from sgfd_envs.morphology import MORPHOLOGY_SPLITS, SETTINGS, check_domain, select_setting, split_settings_of
+from sgfd_envs.state import ResumableState
 from sgfd_envs.wrappers import ObserveParameter, check_observe_parameter, scale_to_unit
 
 if TYPE_CHECKING:
@@ -470,7 +471,8 @@ def _make_monitored_env(env_id: str, split: str, domain: int, action_seed: int, 
 
     env = gym.make(env_id, split=split, domain=domain, **env_kwargs)
     env.action_space.seed(action_seed)
-    return Monitor(env)
+    # outermost, so that SB3's env_method reaches it in a subprocess too
+    return ResumableState(Monitor(env))
 
 
 def make_domain_vec_env(
@@ -483,7 +485,8 @@ def make_domain_vec_env(
 ) -> VecEnv:
     """An SB3 VecEnv with one sub-env per domain of a split (sub-env i is domain i % n_domains).
 
-    Each sub-env is wrapped in SB3's Monitor and seeded ``seed + i`` (its action space too).
+    Each sub-env is wrapped in SB3's Monitor and seeded ``seed + i`` (its action space too), and outermost in
+    :class:`sgfd_envs.state.ResumableState` (``env_method("get_training_state")`` gives its state).
 
     :param env_id: one of :data:`ENV_IDS`
     :param split: a split of the id (see :func:`splits`)

@@ -22,6 +22,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import CSVOutputFormat
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
+from zoo import training_state
 from zoo.runs import (
     Checkpoint,
     FileWriteError,
@@ -199,9 +200,15 @@ def _restore_vec_normalize(model: BaseAlgorithm, path: str) -> None:
 
 
 # What a checkpoint saves, in the order it is written. The model comes last: a checkpoint whose model file
-# exists is complete, which is how one is recognised without its index. A further part (an environment's
-# state, say) is one more entry before the model; resuming restores every part the checkpoint has.
+# exists is complete, which is how one is recognised without its index. Resuming restores every part the
+# checkpoint has; the training state (generators, envs) when the resumed training starts (zoo.experiment).
 CHECKPOINT_PARTS: tuple[CheckpointPart, ...] = (
+    CheckpointPart(
+        "training_state",
+        ".pkl",
+        save=training_state.save,
+        applies=lambda model: training_state.unavailable(model) is None,
+    ),
     CheckpointPart(
         "replay_buffer",
         ".pkl",
@@ -255,7 +262,8 @@ def interrupts_deferred(stop: StopRequest) -> Iterator[None]:
 
 class ResumableCheckpointCallback(BaseCallback):
     """
-    Every ``save_freq`` calls, and when ``stop`` is set (then training stops), save a checkpoint: the parts of
+    Every ``save_freq`` calls, and when ``stop`` is set (then training stops), save a checkpoint between two env
+    steps (at ``on_rollout_start``: with ``train_freq`` k, the first at or after the due call): the parts of
     ``parts`` that the model has, each written whole (:func:`zoo.runs.atomic_write`: fsync'd, checked, renamed),
     then ``checkpoint.json`` listing them with their sizes and sha256. The two newest checkpoints are kept:
     before a new one is written the older is deleted, and the newer stays until the new one is complete, so a
@@ -292,6 +300,7 @@ class ResumableCheckpointCallback(BaseCallback):
         self.parts = tuple(parts)
         self.failure: str | None = None
         self.stopped: int | None = None
+        self._next_save = save_freq or 0
 
     def _on_training_start(self) -> None:
         self.save_path.mkdir(parents=True, exist_ok=True)
@@ -303,19 +312,32 @@ class ResumableCheckpointCallback(BaseCallback):
         if removed and self.verbose > 0:
             print(f"Removed what interrupted saves left in {self.save_path}: {', '.join(removed)}")
 
-    def _on_step(self) -> bool:
-        saved = None
-        if self.save_freq is not None and self.n_calls % self.save_freq == 0:
-            saved = self.save()
-            if saved is None:
-                self.stopped = self.num_timesteps
-                return False
-        if self.stop:  # (a Ctrl-C during the periodic save above stops at it)
-            if saved is None:
-                self.save()
+    def _on_rollout_start(self) -> None:
+        # Between two env steps: the last step's transition is stored and trained on, the next not yet taken, so
+        # the checkpoint's model, buffer and training state are of one moment and a resume continues from it
+        # bit for bit. The step after a stopping checkpoint is taken and then dropped (_on_step stops before
+        # SB3 stores it).
+        if self.stopped is not None:
+            return
+        due = self.save_freq is not None and self.n_calls >= self._next_save
+        if not due and not self.stop:
+            return
+        newest = self.newest()
+        # A run resumed and stopped before its first step: its checkpoint is this moment already.
+        saved = newest if newest is not None and newest.num_timesteps == self.num_timesteps else self.save()
+        if due:
+            self._next_save = (self.n_calls // self.save_freq + 1) * self.save_freq  # type: ignore[operator]
+        if saved is None or self.stop:
             self.stopped = self.num_timesteps
-            return False
-        return True
+
+    def _on_step(self) -> bool:
+        return self.stopped is None
+
+    def _on_training_end(self) -> None:
+        # The end of training is between two steps too (after the last step's update): a due checkpoint is taken
+        # there, so that a kill during the final save loses nothing.
+        if self.stopped is None and (self.stop or (self.save_freq is not None and self.n_calls >= self._next_save)):
+            self._on_rollout_start()
 
     def newest(self) -> Checkpoint | None:
         try:
