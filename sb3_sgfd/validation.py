@@ -37,6 +37,11 @@ def check_non_negative(**values: float) -> None:
             raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
 
 
+class RefusedTransition(ValueError):
+    """An env's transition the replay buffer would not store (:func:`check_transitions`): training stops at it,
+    nothing of it is stored."""
+
+
 def check_transitions(
     *,
     observations: np.ndarray,
@@ -59,7 +64,7 @@ def check_transitions(
         outside = np.flatnonzero(domains >= n_domains)
         if len(outside) > 0:
             env = int(outside[0])
-            raise ValueError(
+            raise RefusedTransition(
                 f"the replay buffer refuses domain label {int(domains[env])} from info['domain'] "
                 + where.format(add=add_index, env=env, domain=int(domains[env]))
                 + f": labels must lie in [0, n_domains={n_domains}); pass n_domains= at least one more than the "
@@ -79,7 +84,7 @@ def check_transitions(
         if not finite.all():
             env = int(np.flatnonzero(~finite)[0])
             value = rows[env][~np.isfinite(rows[env])][0]
-            raise ValueError(
+            raise RefusedTransition(
                 f"the replay buffer refuses a non-finite {name} ({value}) "
                 + where.format(add=add_index, env=env, domain=int(domains[env]))
                 + ": the env produced it; nothing of this add was stored"

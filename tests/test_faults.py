@@ -10,7 +10,7 @@ The file is one section per kind of fault; a new case goes in its section (a new
 - partial final models: what a stopped run's folder may hold is never taken for a finished run;
 - configuration typos: unknown keys inside the kwargs hyperparameters, in every command that reads them.
 
-(Bad data, such as NaN observations or out-of-range domain labels, would be a section of its own.)
+- bad data: a NaN reward, an out-of-range domain label from an env, refused before the replay buffer stores it.
 
 Every run is the quick configuration of SAC on states, cut to a few hundred steps with a tiny network.
 """
@@ -39,7 +39,9 @@ import pytest
 import ray
 import stable_baselines3.common.base_class
 import stable_baselines3.common.off_policy_algorithm
+from stable_baselines3.common.save_util import load_from_pkl
 
+import sgfd_envs.dmc
 from zoo import sweep, training
 from zoo.cli import main as zoo_main
 from zoo.runs import FINISHED_MARKER, RunFolder, read_index
@@ -356,7 +358,7 @@ def test_ctrl_c_stops_a_fresh_and_a_resumed_run_at_a_checkpoint(tmp_path: Path) 
     assert not RunFolder(run).finished and not (run / f"{NAME}.zip").exists()
 
     resumed = Training(printed_command(line, "continue it with: "), tmp_path / "resumed")
-    resumed.wait_until((run / f"progress_from_{stopped}.csv").exists)  # training again (its log is opened)
+    resumed.wait_until(lambda: read_index(run)[0].num_timesteps > stopped)  # training again, past a checkpoint
     assert resumed.send(signal.SIGINT) == 130
     line = resumed.last_error()
     again = read_index(run)[0].num_timesteps
@@ -534,3 +536,63 @@ def test_the_sweep_refuses_a_typo_once_at_planning_before_any_run(tmp_path: Path
 def test_representation_kwargs_take_the_dict_string_form() -> None:
     argv = ["--algo", "dbc", "--env", ENV_ID, "--quick", "-params", "representation_kwargs:'dict(bisim_coef=0.25)'"]
     assert training.train(argv, check_only=True) == 0
+
+
+# -- bad data -------------------------------------------------------------------------------------------------
+
+
+def corrupt_one_step(monkeypatch: pytest.MonkeyPatch, at_call: int, damage: Callable[[tuple], tuple]) -> None:
+    """Make the ``at_call``-th ``DMCEnv.step`` of this process (counted over every sub-env) return ``damage`` of
+    its result: an env that produces bad data once."""
+    real_step = sgfd_envs.dmc.DMCEnv.step
+    calls = iter(range(1, 10**9))
+
+    def step(self, action):
+        result = real_step(self, action)
+        return damage(result) if next(calls) == at_call else result
+
+    monkeypatch.setattr(sgfd_envs.dmc.DMCEnv, "step", step)
+
+
+def nan_reward(result: tuple) -> tuple:
+    obs, _reward, terminated, truncated, info = result
+    return obs, float("nan"), terminated, truncated, info
+
+
+def unknown_domain(result: tuple) -> tuple:
+    obs, reward, terminated, truncated, info = result
+    return obs, reward, terminated, truncated, {**info, "domain": 9}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("algo", "damage", "refusal"),
+    [
+        ("sac", nan_reward, r"refuses a non-finite reward \(nan\) at add 74 \(sub-env 2, domain 2\)"),
+        ("sgfd_sac", unknown_domain, r"refuses domain label 9 .* at add 74 \(sub-env 2, domain 9\).*n_domains=4"),
+    ],
+)
+def test_bad_data_from_an_env_stops_training_in_one_line_and_never_enters_the_buffer(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, algo: str, damage: Callable, refusal: str
+) -> None:
+    # 4 sub-envs: call 299 is sub-env 2's step in vector step 75 (add 74), after the checkpoint at 200 steps.
+    corrupt_one_step(monkeypatch, 4 * 74 + 3, damage)
+    logs = tmp_path / "logs"
+    args = train_args(logs)
+    args[args.index("sac")] = algo
+    code, _out, err = zoo(args)
+    run = logs / algo / f"{NAME}_1"
+    assert code == 1 and len(err) == 1, err
+    assert re.search(refusal, err[0]), err[0]
+    assert "training stopped at 300 steps; its checkpoint at 200 steps is in" in err[0]
+    assert not RunFolder(run).finished and leftovers(run) == []
+    (checkpoint,) = read_index(run)
+    buffer = load_from_pkl(run / checkpoint.files["replay_buffer"].name)
+    stored = slice(0, buffer.size())
+    assert numpy.isfinite(buffer.rewards[stored]).all() and (buffer.domains[stored] < 4).all()
+
+    monkeypatch.undo()  # the env fixed
+    code, out, err = zoo(printed_command(err[0], "continue it with: "))
+    assert code == 0, err
+    assert f"Resuming {run} from 200 steps" in out
+    assert_finished(run, 400)

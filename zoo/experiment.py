@@ -29,7 +29,9 @@ import sgfd_envs
 from sb3_sgfd import SGFD_SAC
 from sb3_sgfd.policies import MlpEncoder, PixelEncoder
 from sb3_sgfd.representation import REPRESENTATIONS
+from sb3_sgfd.validation import RefusedTransition
 from sgfd_envs.backgrounds import overlay_bank
+from zoo import training_state
 from zoo.algos import SGFD_ALGOS
 from zoo.arguments import TrainingStopped, ZooError, check_keywords, train_command
 from zoo.callbacks import (
@@ -58,6 +60,7 @@ from zoo.runs import (
     write_failure,
     write_index,
 )
+from zoo.training_state import RestoreTrainingState
 
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 # Keys rl-zoo3 consumes itself before the rest goes to the algorithm's constructor.
@@ -190,6 +193,7 @@ class SGFDExperimentManager(ExperimentManager):
         self.stop = StopRequest()
         self.checkpoint: Checkpoint | None = None
         self.checkpointer: ResumableCheckpointCallback | None = None
+        self.training_state: dict[str, Any] | None = None
         if resume and not check_only:
             self._point_at_run_to_resume()
 
@@ -289,6 +293,8 @@ class SGFDExperimentManager(ExperimentManager):
             evaluation = next((c for c in self.callbacks if isinstance(c, MultiSplitEvalCallback)), None)
             latest = None if evaluation is None else evaluation.latest_returns
             self.callbacks.append(ProgressCallback(self.progress_reporter, self.n_timesteps, latest))
+        if self.training_state is not None:  # last: after every other callback has started
+            self.callbacks.append(RestoreTrainingState(self.training_state))
 
     # -- setting up, resuming -------------------------------------------------------------------
 
@@ -403,6 +409,7 @@ class SGFDExperimentManager(ExperimentManager):
         run = RunFolder(Path(self.save_path))
         checkpoint = self.checkpoint
         assert checkpoint is not None
+        exact = "training_state" in checkpoint.files
         try:
             model = ALGOS[self.algo].load(
                 run.path / checkpoint.files["model"].name,
@@ -410,10 +417,14 @@ class SGFDExperimentManager(ExperimentManager):
                 tensorboard_log=self.tensorboard_log,
                 verbose=self.verbose,
                 device=self.device,
+                # with the envs' state restored, the checkpoint's last observation is the envs' own
+                force_reset=not exact,
             )
             for part in CHECKPOINT_PARTS:
                 if part.restore is not None and part.name in checkpoint.files:
                     part.restore(model, str(run.path / checkpoint.files[part.name].name))
+            if exact:  # put back when the resumed training starts, after everything that builds the run
+                self.training_state = training_state.load(run.path / checkpoint.files["training_state"].name)
         except Exception as error:
             env.close()
             raise ZooError(
@@ -430,6 +441,15 @@ class SGFDExperimentManager(ExperimentManager):
 
     # -- training and its end ----------------------------------------------------------------------
 
+    def _warn_if_inexact(self, model: BaseAlgorithm) -> None:
+        reason = training_state.unavailable(model)
+        if reason is not None:
+            print(
+                f"warning: this run's checkpoints hold no env state ({reason}): a resume continues from the model, "
+                "replay buffer and optimisers with the envs started afresh, not bit for bit",
+                file=sys.stderr,
+            )
+
     def learn(self, model: BaseAlgorithm) -> None:
         """Train to ``n_timesteps`` (the rest of them when resumed). Ctrl-C stops at a checkpoint, a full disk
         stops cleanly; either raises :class:`TrainingStopped`, so that no final model is saved."""
@@ -437,6 +457,7 @@ class SGFDExperimentManager(ExperimentManager):
         if remaining <= 0:
             print(f"Nothing to resume: the checkpoint already has {model.num_timesteps} of {self.n_timesteps} steps")
             return None
+        self._warn_if_inexact(model)
         kwargs: dict[str, Any] = {"reset_num_timesteps": self.checkpoint is None}
         if self.log_interval > -1:
             kwargs["log_interval"] = self.log_interval
@@ -452,6 +473,12 @@ class SGFDExperimentManager(ExperimentManager):
                 f"Ctrl-C twice: stopped at once at {model.num_timesteps} steps, {self._kept()}; the run is not "
                 f"finished; {self._next_command()}",
                 exit_code=130,
+            ) from None
+        except RefusedTransition as error:
+            # Nothing of the bad step was stored; the newest checkpoint is from before it.
+            raise TrainingStopped(
+                f"{error}; training stopped at {model.num_timesteps} steps; {self._kept()}; the run is not "
+                f"finished; once the env is fixed, {self._next_command()}"
             ) from None
         except (FileWriteError, OSError) as error:
             if not isinstance(error, FileWriteError) and error.errno not in NO_ROOM:
@@ -470,9 +497,11 @@ class SGFDExperimentManager(ExperimentManager):
         assert self.checkpointer is not None
         if self.checkpointer.failure is not None:
             raise TrainingStopped(f"{self.checkpointer.failure}; free space, then {self._next_command()}")
-        if self.stop and model.num_timesteps < self.n_timesteps:
+        # The checkpointer stops between two env steps; the step SB3 took after it is dropped, not trained on.
+        stopped_at = self.checkpointer.stopped if self.checkpointer.stopped is not None else model.num_timesteps
+        if self.stop and stopped_at < self.n_timesteps:
             raise TrainingStopped(
-                f"{self.stop.reason} at {model.num_timesteps} steps: {self._kept()}; the run is not finished; "
+                f"{self.stop.reason} at {stopped_at} steps: {self._kept()}; the run is not finished; "
                 f"{self._next_command()}",
                 exit_code=130,
             )
