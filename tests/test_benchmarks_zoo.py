@@ -15,7 +15,7 @@ from zoo.experiment import SGFDExperimentManager, hyperparams_file, register_alg
 from zoo.runs import RunFolder
 
 BENCHMARK_IDS = [env_id for ids in sgfd_envs.BENCHMARK_IDS.values() for env_id in ids]
-AGENTS = ("ambs", "dbc", "sac", "sgfd_sac", "sgfd_sac_plain", "sgqn", "ted")
+AGENTS = ("ambs", "dbc", "sac", "sgfd_sac", "sgfd_sac_moderate", "sgfd_sac_official", "sgfd_sac_plain", "sgqn", "ted")
 # The benchmarks' training lengths in simulator steps (frames): DMC-GB 500k, DMC-GB2 1M, DCS 1M (as DMC-GB2).
 TRAINING_FRAMES = {"DMCGB": 500_000, "DMCGB2": 1_000_000, "DCS": 1_000_000}
 

@@ -239,7 +239,7 @@ def test_classifier_accuracy_merges_resumed_logs_and_plots_mean_and_threshold(tm
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["saliency-maps", "-f", "{folder}", "--env", "SGFD/nope-v0"], "not an SGFD id"),
+        (["saliency-maps", "-f", "{folder}", "--env", "SGFD/nope-v0"], "not a registered id"),
         (["saliency-maps", "-f", "{folder}", "--env", "SGFD/MT-cheetah-run-v0"], "no finished sgfd_sac run"),
         (["saliency-maps", "-f", "{folder}", "--env", ENV_ID, "--steps", "a,b"], "--steps must be"),
         (["saliency-maps", "-f", "{folder}", "--env", ENV_ID, "--exp-id", "7"], "choose from [1]"),

@@ -33,7 +33,8 @@ class TrainingStopped(ZooError):
 
 
 def check_env_id(env_id: str | None, flag: str = "--env") -> str:
-    """``env_id`` if it is an SGFD id, else a ZooError naming the flag, the closest id and the known ones.
+    """``env_id`` if it is a registered id (``sgfd_envs.ENV_IDS``), else a ZooError naming the flag, the closest
+    id and the known ones.
 
     :param env_id: the value given
     :param flag: the option it came from
@@ -44,7 +45,7 @@ def check_env_id(env_id: str | None, flag: str = "--env") -> str:
             raise ZooError(f"{flag} is required; one of {known}")
         close = difflib.get_close_matches(env_id, sgfd_envs.ENV_IDS, n=1)
         hint = f" (did you mean {close[0]}?)" if close else ""
-        raise ZooError(f"{flag} {env_id!r} is not an SGFD id{hint}; choose from {known}")
+        raise ZooError(f"{flag} {env_id!r} is not a registered id{hint}; choose from {known}")
     return env_id
 
 

@@ -22,7 +22,7 @@ DEFAULT_STEPS = 20_000
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="sgfd-zoo quick", description=__doc__)
-    parser.add_argument("--env", default="SGFD/MT-walker-walk-v0", help="an SGFD id")
+    parser.add_argument("--env", default="SGFD/MT-walker-walk-v0", help="a registered id (sgfd_envs.ENV_IDS)")
     parser.add_argument("--algos", nargs="+", default=["sgfd_sac", "sac"], choices=sorted(SGFD_ALGOS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1], help="seeds: the spread of the results")
     parser.add_argument("-f", "--folder", type=Path, default=Path("logs/quick"), help="log folder")

@@ -41,7 +41,7 @@ def train(
 
     parser = argparse.ArgumentParser(prog=f"sgfd-zoo {'optimize' if optimize else 'train'}", add_help=False)
     parser.add_argument("--algo", default="sgfd_sac", choices=sorted(SGFD_ALGOS), help="algorithm key")
-    parser.add_argument("--env", help="an SGFD id, e.g. SGFD/MT-walker-walk-v0")
+    parser.add_argument("--env", help="a registered id (sgfd_envs.ENV_IDS), e.g. SGFD/MT-walker-walk-v0")
     parser.add_argument("--quick", action="store_true", help="the quick configuration (zoo/hyperparams/quick)")
     parser.add_argument("--resume", action="store_true", help="continue the newest run from its last checkpoint")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
