@@ -1,5 +1,6 @@
 """Shared pytest setup."""
 
+import pytest
 import torch
 
 # sgfd_envs picks MuJoCo's headless OpenGL backend (EGL) unless MUJOCO_GL is set; that must happen
@@ -11,12 +12,18 @@ import sgfd_envs  # noqa: F401
 torch.set_num_threads(1)
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's, which reads the groups
 def pytest_collection_modifyitems(config, items):
-    """Tests marked ``cuda`` skip, with the reason said, where no CUDA device is there."""
+    """Tests marked ``cuda`` skip, with the reason said, where no CUDA device is there; tests marked ``ray`` run
+    on one xdist worker, one after another (two local Ray instances at once would compete for the cores and
+    their ports), and first."""
+    for item in items:
+        if item.get_closest_marker("ray") is not None:
+            item.add_marker(pytest.mark.xdist_group("ray"))
+    # The Ray tests first: their worker works through them while the others share out the rest.
+    items.sort(key=lambda item: item.get_closest_marker("ray") is None)
     if torch.cuda.is_available():
         return
-    import pytest
-
     skip = pytest.mark.skip(reason="needs a CUDA device (none here)")
     for item in items:
         if "cuda" in item.keywords:

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3 import SAC
+from stable_baselines3.common.torch_layers import FlattenExtractor
 from stable_baselines3.common.vec_env import VecFrameStack, VecTransposeImage
 
 import sgfd_envs
@@ -215,7 +216,10 @@ def test_save_load_predicts_identically_and_keeps_the_objective_and_its_optimise
         (dict(representation="dbc", representation_kwargs=dict(bisim=1)), "representation_kwargs for 'dbc'"),
         (dict(representation_kwargs=dict(bisim_coef=1)), "given without a representation"),
         (dict(augmentation_views=1), "augmentation_views=1 shifts images"),
-        (dict(representation="dbc"), "trains the encoder, but FlattenExtractor has no parameters"),
+        (
+            dict(representation="dbc", policy_kwargs=dict(features_extractor_class=FlattenExtractor)),
+            "trains the encoder, but FlattenExtractor has no parameters",
+        ),
         (dict(representation="dbc", representation_kwargs=dict(metric="papr")), "metric must be one of"),
         (dict(representation="ambs", representation_kwargs=dict(transition="ensemble")), "transition must be one of"),
         (dict(representation="ambs", representation_kwargs=dict(metric="paper", meta_learners=False)), "code's form"),

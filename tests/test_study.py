@@ -12,6 +12,8 @@ import yaml
 
 from zoo.cli import main as zoo_main
 
+pytestmark = pytest.mark.ray
+
 ENV_ID = "SGFD/MT-walker-walk-v0"
 TINY_PARAMS = ("-params", "learning_starts:100", "classifier_start:200")
 SPEC = {

@@ -22,6 +22,8 @@ import yaml
 from zoo import cli, sweep
 from zoo.runs import Checkpoint, RunFolder, atomic_write, find_runs, mark_finished, read_index, write_index
 
+pytestmark = pytest.mark.ray
+
 # ray is imported above, at collection: its log handler keeps the sys.stderr of its import, and one
 # imported inside a test (under capsys) would write to a closed stream in the tests after it.
 
