@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from sb3_sgfd.buffers.slots import stored_pairs
+
 
 class EpisodeIndexMixin:
     """
@@ -92,11 +94,8 @@ class EpisodeIndexMixin:
         :param env_indices: Env indices, same shape as ``batch_inds``
         :return: int64 array of that shape
         """
-        batch_inds, env_indices = np.asarray(batch_inds), np.asarray(env_indices)
-        if batch_inds.shape != env_indices.shape:
-            raise ValueError(f"env_indices must have batch_inds' shape {batch_inds.shape}, got {env_indices.shape}")
-        upper = self.buffer_size if self.full else self.pos
-        stored = (batch_inds >= 0) & (batch_inds < upper) & (env_indices >= 0) & (env_indices < self.n_envs)
+        n_stored = self.buffer_size if self.full else self.pos
+        batch_inds, env_indices, stored = stored_pairs(batch_inds, env_indices, n_stored, self.n_envs)
         if not stored.all():
             bad = np.flatnonzero(~stored.ravel())[:5]
             pairs = list(zip(batch_inds.ravel()[bad].tolist(), env_indices.ravel()[bad].tolist(), strict=True))

@@ -14,6 +14,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from sb3_sgfd.buffers.domains import DomainLabelsMixin, domain_labels
 from sb3_sgfd.buffers.episodes import EpisodeIndexMixin
 from sb3_sgfd.buffers.frames import _EMPTY_SPACE, FrameStorageMixin, _check_frame_stack
+from sb3_sgfd.buffers.slots import stored_pairs
 from sb3_sgfd.transfer import BatchTransfer
 from sb3_sgfd.validation import check_positive_int, check_transitions
 
@@ -222,11 +223,8 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
         :param env_indices: Env indices, same shape as ``batch_inds``
         :return: Boolean array of that shape
         """
-        batch_inds, env_indices = np.asarray(batch_inds), np.asarray(env_indices)
-        if batch_inds.shape != env_indices.shape:
-            raise ValueError(f"env_indices must have batch_inds' shape {batch_inds.shape}, got {env_indices.shape}")
-        upper = self.buffer_size if self.full else self.pos
-        in_range = (batch_inds >= 0) & (batch_inds < upper) & (env_indices >= 0) & (env_indices < self.n_envs)
+        n_stored = self.buffer_size if self.full else self.pos
+        batch_inds, env_indices, in_range = stored_pairs(batch_inds, env_indices, n_stored, self.n_envs)
         if self.optimize_memory_usage and self.full:
             in_range &= batch_inds != self.pos
         if self.frame_stack is None or not in_range.any():
