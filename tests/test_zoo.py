@@ -58,6 +58,9 @@ def test_train_both_algorithms_then_evaluate_and_plot(tmp_path):
     config = yaml.load((sgfd_run / RUN_NAME / "config.yml").read_text(), Loader=yaml.UnsafeLoader)
     assert config["env_kwargs"] == {"obs_type": "state", "observe_parameter": True}
     assert config["classifier_start"] == 300
+    # Without --save-freq a run checkpoints every fifth of its steps (the two newest kept), so a kill of a short
+    # run costs a fifth of it, not all of it.
+    assert [checkpoint.num_timesteps for checkpoint in read_index(sgfd_run)] == [400, 320]
 
     result = zoo("evaluate", "-f", str(logs), "--n-episodes", "2")
     rows = read_results(logs / "results.csv")

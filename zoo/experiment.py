@@ -132,6 +132,18 @@ def register_algorithms() -> None:
             HYPERPARAMS_CONVERTER[key] = HYPERPARAMS_CONVERTER["sac"]
 
 
+#: The most env steps between two checkpoints when ``--save-freq`` is not given.
+LONGEST_CHECKPOINT_INTERVAL = 100_000
+#: Without ``--save-freq``, a run checkpoints at least this many times, so a kill costs at most this fraction.
+CHECKPOINTS_PER_RUN = 5
+
+
+def default_checkpoint_interval(n_timesteps: int) -> int:
+    """Env steps between checkpoints when ``--save-freq`` is not given: a fifth of the run, at most 100k steps
+    (a paper-scale pixel checkpoint writes a 10.6 GB buffer)."""
+    return max(min(LONGEST_CHECKPOINT_INTERVAL, n_timesteps // CHECKPOINTS_PER_RUN), 1)
+
+
 class SGFDExperimentManager(ExperimentManager):
     """
     rl-zoo3's ExperimentManager with SGFD's conventions:
@@ -160,6 +172,8 @@ class SGFDExperimentManager(ExperimentManager):
     :param check_only: Only check the configuration: ``setup_experiment`` builds the model on the env with a
         tiny replay buffer, writes nothing and returns no model
     :param command: The ``sgfd-zoo train`` flags of this run, to print the command that continues it
+    :param default_save_freq: No ``--save-freq`` was given: checkpoint every :func:`default_checkpoint_interval`
+        steps of this run
     """
 
     def __init__(
@@ -172,6 +186,7 @@ class SGFDExperimentManager(ExperimentManager):
         progress_reporter: Callable[[dict[str, Any]], None] | None = None,
         check_only: bool = False,
         command: Sequence[str] | None = None,
+        default_save_freq: bool = False,
         **kwargs,
     ):
         algo = args[1] if len(args) > 1 else kwargs["algo"]
@@ -190,6 +205,7 @@ class SGFDExperimentManager(ExperimentManager):
         self.check_only = check_only
         self.resume = resume
         self.command = None if command is None else list(command)
+        self.default_save_freq = default_save_freq
         self.stop = StopRequest()
         self.checkpoint: Checkpoint | None = None
         self.checkpointer: ResumableCheckpointCallback | None = None
@@ -273,6 +289,8 @@ class SGFDExperimentManager(ExperimentManager):
             self.callbacks.append(ProgressBarCallback())
         log_name = "progress.csv" if self.checkpoint is None else f"progress_from_{self.checkpoint.num_timesteps}.csv"
         self.callbacks.append(CSVLogCallback(Path(self.save_path) / log_name))
+        if self.default_save_freq:
+            self.save_freq = default_checkpoint_interval(self.n_timesteps)
         # Always there: with --save-freq <= 0 it still saves the checkpoint a Ctrl-C stops at.
         save_freq = max(self.save_freq // self.n_envs, 1) if self.save_freq > 0 else None
         self.checkpointer = ResumableCheckpointCallback(save_freq, self.save_path, self.stop, verbose=self.verbose)

@@ -19,8 +19,6 @@ from typing import Any
 from zoo.algos import SGFD_ALGOS
 from zoo.arguments import ZooError, check_env_id, flag_value, has_flag
 
-DEFAULT_SAVE_FREQ = 100_000
-
 
 def train(
     argv: Sequence[str],
@@ -55,8 +53,6 @@ def train(
     else:
         check_env_id(ours.env)
     rest = ["--algo", ours.algo, "--env", str(ours.env), *rest]
-    if not has_flag(rest, "--save-freq"):
-        rest += ["--save-freq", str(DEFAULT_SAVE_FREQ)]
     if optimize:
         rest += ["-optimize"] + ([] if has_flag(rest, "--no-optim-plots") else ["--no-optim-plots"])
 
@@ -70,6 +66,7 @@ def train(
         progress_reporter=progress_reporter,
         check_only=check_only,
         command=list(argv),
+        default_save_freq=not has_flag(rest, "--save-freq"),
     )
     quiet = contextlib.redirect_stdout(io.StringIO()) if check_only else contextlib.nullcontext()
     with replaced(rl_zoo3.train, "ExperimentManager", manager), command_line(parser.prog, rest), quiet:
