@@ -40,7 +40,6 @@ from zoo.runs import RunFolder, env_name, find_runs, select_run
 PANEL = 1.3
 DPI = 100
 ACCURACY_KEY = "sgfd/classifier_accuracy"
-DEFAULT_ACCURACY_THRESHOLD = 0.9
 
 
 # --- runs and models -------------------------------------------------------------------------------------
@@ -365,7 +364,7 @@ def load_accuracy_curves(folder: Path, env_ids: list[str] | None = None) -> dict
             {
                 "steps": steps,
                 "accuracy": accuracy,
-                "threshold": float(run.config.get("accuracy_threshold", DEFAULT_ACCURACY_THRESHOLD)),
+                "threshold": run.accuracy_threshold,
                 "start": run.config.get("classifier_start"),
                 "run": run.path,
             }

@@ -92,3 +92,37 @@ def test_a_study_trains_evaluates_and_writes_its_compact_results_next_to_its_spe
     with contextlib.redirect_stdout(io.StringIO()):
         assert zoo_main(["study", str(spec), "-f", str(logs), "--export-only"]) == 0
     assert (study / "command.txt").read_text() == command
+
+
+def write_logged_run(folder: Path, algo: str, config: dict[str, object], logged: dict[str, list[float]]) -> None:
+    """A run folder with only what the diagnostics read: its config and a progress.csv logged every 1000 steps."""
+    run = folder / algo / "SGFD-MT-walker-walk-v0_1"
+    (run / "SGFD-MT-walker-walk-v0").mkdir(parents=True)
+    (run / "SGFD-MT-walker-walk-v0" / "config.yml").write_text(yaml.safe_dump(config))
+    n_rows = len(next(iter(logged.values())))
+    with (run / "progress.csv").open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["time/total_timesteps", *logged])
+        for row in range(n_rows):
+            writer.writerow([1000 * (row + 1), *(values[row] for values in logged.values())])
+
+
+def test_the_diagnostics_read_each_runs_own_threshold_and_name_the_most_salient_feature(tmp_path):
+    from zoo.runs import find_runs
+    from zoo.study import diagnostics_summary
+
+    logged = {"sgfd/classifier_accuracy": [0.25, 0.85, 0.95], "sgfd/top_saliency_feature": [24, 24, 3]}
+    write_logged_run(tmp_path, "sgfd_sac", {"classifier_start": 0}, logged)  # the paper reading: 0.9
+    write_logged_run(tmp_path, "sgfd_sac_official", {"reading": "official"}, logged)  # the code's: 0.8
+    write_logged_run(tmp_path, "sgfd_sac_moderate", {"accuracy_threshold": 0.2}, logged)  # its own
+    rows = {
+        cells[1]: cells
+        for line in diagnostics_summary(find_runs(tmp_path, finished=False)).splitlines()[2:]
+        for cells in [[cell.strip() for cell in line.strip("|").split("|")]]
+    }
+    assert {name: cells[3] for name, cells in rows.items()} == {
+        "SGFD": "3000 ± 0",
+        "SGFD (code)": "2000 ± 0",
+        "SGFD moderate": "1000 ± 0",
+    }
+    assert {cells[7] for cells in rows.values()} == {"24 (67%)"}

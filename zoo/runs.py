@@ -39,6 +39,7 @@ import numpy as np
 import yaml
 
 import sgfd_envs
+from sb3_sgfd.sac import READINGS
 from zoo.algos import SGFD_ALGOS
 from zoo.arguments import ZooError, check_env_id
 
@@ -396,6 +397,14 @@ class RunFolder:
     def config(self) -> dict[str, Any]:
         """The hyperparameters the run trained with ({} before the run wrote them, or when unreadable)."""
         return _read_yaml(self.config_dir / "config.yml")[0]
+
+    @property
+    def accuracy_threshold(self) -> float:
+        """The accuracy SGFD's classifier trained to in this run: its config's, else its reading's default."""
+        threshold = self.config.get("accuracy_threshold")
+        if threshold is None:
+            threshold = READINGS[self.config.get("reading", "paper")].defaults["accuracy_threshold"]
+        return float(threshold)
 
     @property
     def seed(self) -> int | None:

@@ -41,6 +41,7 @@ from zoo.arguments import ZooError, check_at_least, checked_names
 from zoo.runs import RunFolder, env_name, find_runs
 
 SPEC_KEYS = {"name", "description", "algos", "envs", "seeds", "train", "n_episodes", "reference"}
+TOP_SALIENCY = "sgfd/top_saliency_feature"  # the index of the most salient feature, per logged step
 # Logged figures kept per run (the rest of progress.csv stays in the log folder).
 DIAGNOSTICS = (
     "sgfd/classifier_accuracy",
@@ -49,7 +50,7 @@ DIAGNOSTICS = (
     "sgfd/weight_max",
     "sgfd/decorrelation_loss_before",
     "sgfd/decorrelation_loss_after",
-    "sgfd/top_saliency_feature",
+    TOP_SALIENCY,
     "train/critic_loss",
     "train/actor_loss",
     "train/ent_coef",
@@ -138,23 +139,32 @@ def diagnostics_figures(runs: list[RunFolder], out: Path) -> list[Path]:
 
     panels = (("sgfd/classifier_accuracy", "classifier accuracy"), ("sgfd/weight_ess", "weights' ESS / n"))
     panels += (("sgfd/weight_max", "largest weight"), ("sgfd/weight_min", "smallest weight"))
+    panels += ((TOP_SALIENCY, "top-saliency feature (each seed)"),)
     written = []
     for env_id in sorted({run.env_id for run in runs}):
         fig = Figure(figsize=(4 * len(panels), 3.2), layout="constrained")
         axes = fig.subplots(1, len(panels))
         drawn = False
-        for ax, (key, label) in zip(axes, panels, strict=True):
+        for ax, (key, title) in zip(axes, panels, strict=True):
             for algo in sorted({run.algo for run in runs if run.env_id == env_id}, key=algo_sort_key):
                 curves = [run.log(key) for run in runs if run.env_id == env_id and run.algo == algo]
                 curves = [curve for curve in curves if len(curve[0]) > 0]
                 if not curves:
                     continue
+                legend = f"{column_name(algo)} ({len(curves)})"
+                if key == TOP_SALIENCY:  # an index: a mean over seeds would name no feature
+                    color = None
+                    for run_steps, values in curves:
+                        (dots,) = ax.plot(run_steps, values, ".", color=color, alpha=0.5, label=legend)
+                        color, legend = dots.get_color(), None
+                    drawn = True
+                    continue
                 steps, mean, _ = mean_and_band(curves)
-                (line,) = ax.plot(steps, mean, marker=".", label=f"{column_name(algo)} ({len(curves)})")
+                (line,) = ax.plot(steps, mean, marker=".", label=legend)
                 for run_steps, values in curves:
                     ax.plot(run_steps, values, color=line.get_color(), alpha=0.15, linewidth=0.8)
                 drawn = True
-            ax.set_title(label, fontsize=9)
+            ax.set_title(title, fontsize=9)
             ax.set_xlabel("environment steps", fontsize=8)
             ax.grid(alpha=0.3)
         if not drawn:
@@ -171,11 +181,12 @@ def diagnostics_figures(runs: list[RunFolder], out: Path) -> list[Path]:
 
 def diagnostics_summary(runs: list[RunFolder]) -> str:
     """Markdown, per env and algorithm (mean ± std over seeds): when the classifier first reached its threshold,
-    the weights' ESS and range once it had, and the evaluation returns at the end of training."""
+    the weights' ESS and range once it had, the feature most often the most salient (and in what share of all
+    the seeds' logs), and the evaluation returns at the end of training."""
     lines = [
         "| env | algo | seeds | classifier ready at step | ESS / n | smallest weight | largest weight | "
-        "final train return | final extrapolation return |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "top-saliency feature (share of logs) | final train return | final extrapolation return |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for env_id in sorted({run.env_id for run in runs}):
         for algo in sorted({run.algo for run in runs if run.env_id == env_id}, key=algo_sort_key):
@@ -183,7 +194,7 @@ def diagnostics_summary(runs: list[RunFolder]) -> str:
             ready, ess, low, high = [], [], [], []
             for run in group:
                 steps, accuracy = run.log("sgfd/classifier_accuracy")
-                threshold = float(run.config.get("accuracy_threshold", 0.9))
+                threshold = run.accuracy_threshold
                 if len(steps) and (accuracy >= threshold).any():
                     ready.append(float(steps[np.argmax(accuracy >= threshold)]))
                 for key, values in (("sgfd/weight_ess", ess), ("sgfd/weight_min", low), ("sgfd/weight_max", high)):
@@ -191,7 +202,8 @@ def diagnostics_summary(runs: list[RunFolder]) -> str:
                     if len(logged):
                         values.append(float(logged.mean()))
             finals = {split: [_final_return(run, split) for run in group] for split in ("train", "extrapolation")}
-            cells = [_mean_std(ready, "{:.0f}"), _mean_std(ess), _mean_std(low), _mean_std(high)]
+            top = np.concatenate([run.log(TOP_SALIENCY)[1] for run in group]).astype(int)
+            cells = [_mean_std(ready, "{:.0f}"), _mean_std(ess), _mean_std(low), _mean_std(high), _modal_share(top)]
             cells += [_mean_std([v for v in finals[split] if v is not None], "{:.1f}") for split in finals]
             lines.append(
                 f"| {env_id.split('/')[-1]} | {column_name(algo)} | {len(group)} | " + " | ".join(cells) + " |"
@@ -202,6 +214,14 @@ def diagnostics_summary(runs: list[RunFolder]) -> str:
 def _final_return(run: RunFolder, split: str) -> float | None:
     evaluations = run.evaluations(split)
     return None if evaluations is None or not len(evaluations["results"]) else float(evaluations["results"][-1].mean())
+
+
+def _modal_share(values: np.ndarray) -> str:
+    """The most frequent value and its share of ``values``, e.g. ``24 (93%)``; ``–`` when empty."""
+    if not len(values):
+        return "–"
+    counts = np.bincount(values)
+    return f"{counts.argmax()} ({counts.max() / len(values):.0%})"
 
 
 def _mean_std(values: list[float], form: str = "{:.2f}") -> str:
