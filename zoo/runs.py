@@ -39,7 +39,6 @@ import numpy as np
 import yaml
 
 import sgfd_envs
-from sb3_sgfd.sac import READINGS
 from zoo.algos import SGFD_ALGOS
 from zoo.arguments import ZooError, check_env_id
 
@@ -403,6 +402,8 @@ class RunFolder:
         """The accuracy SGFD's classifier trained to in this run: its config's, else its reading's default."""
         threshold = self.config.get("accuracy_threshold")
         if threshold is None:
+            from sb3_sgfd.sac import READINGS  # here: reading run folders needs no torch (tests/test_layers.py)
+
             threshold = READINGS[self.config.get("reading", "paper")].defaults["accuracy_threshold"]
         return float(threshold)
 
