@@ -134,7 +134,7 @@ def register_algorithms() -> None:
 
 #: The most env steps between two checkpoints when ``--save-freq`` is not given.
 LONGEST_CHECKPOINT_INTERVAL = 100_000
-#: Without ``--save-freq``, a run checkpoints at least this many times, so a kill costs at most this fraction.
+#: Without ``--save-freq``, a run checkpoints at least this many times: a kill costs at most 1/5 of a short run.
 CHECKPOINTS_PER_RUN = 5
 
 

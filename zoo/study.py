@@ -157,12 +157,11 @@ def diagnostics_figures(runs: list[RunFolder], out: Path) -> list[Path]:
                     for run_steps, values in curves:
                         (dots,) = ax.plot(run_steps, values, ".", color=color, alpha=0.5, label=legend)
                         color, legend = dots.get_color(), None
-                    drawn = True
-                    continue
-                steps, mean, _ = mean_and_band(curves)
-                (line,) = ax.plot(steps, mean, marker=".", label=legend)
-                for run_steps, values in curves:
-                    ax.plot(run_steps, values, color=line.get_color(), alpha=0.15, linewidth=0.8)
+                else:
+                    steps, mean, _ = mean_and_band(curves)
+                    (line,) = ax.plot(steps, mean, marker=".", label=legend)
+                    for run_steps, values in curves:
+                        ax.plot(run_steps, values, color=line.get_color(), alpha=0.15, linewidth=0.8)
                 drawn = True
             ax.set_title(title, fontsize=9)
             ax.set_xlabel("environment steps", fontsize=8)
