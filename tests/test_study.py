@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import shutil
 from pathlib import Path
 
 import pytest
@@ -69,7 +70,9 @@ def test_a_study_trains_evaluates_and_writes_its_compact_results_next_to_its_spe
         run = study / "runs" / algo / "SGFD-MT-walker-walk-v0_1"
         assert {path.name for path in run.iterdir()} == {
             "config.yml",
+            "args.yml",
             "diagnostics.csv",
+            "final_evaluation.csv",
             "evaluations_train.npz",
             "evaluations_interpolation.npz",
             "evaluations_extrapolation.npz",
@@ -92,6 +95,20 @@ def test_a_study_trains_evaluates_and_writes_its_compact_results_next_to_its_spe
     with contextlib.redirect_stdout(io.StringIO()):
         assert zoo_main(["study", str(spec), "-f", str(logs), "--export-only"]) == 0
     assert (study / "command.txt").read_text() == command
+    # on another machine (no log folder, the study's records committed): nothing is trained again, and the
+    # tables are the same, computed from the records
+    tables = {name: (study / name).read_text() for name in ("results.csv", "scores.csv", "aggregate.csv")}
+    shutil.rmtree(logs)
+    fresh = io.StringIO()
+    with contextlib.redirect_stdout(fresh):
+        assert zoo_main(["study", str(spec), "-f", str(logs)]) == 0
+    assert "(2 recorded in" in fresh.getvalue() and "0 trained, 2 already finished" in fresh.getvalue()
+    assert {name: (study / name).read_text() for name in tables} == tables
+    with (study / "results.csv").open() as handle:
+        assert {row["run"] for row in csv.DictReader(handle)} == {
+            "runs/sgfd_sac/SGFD-MT-walker-walk-v0_1",
+            "runs/sgfd_sac_no_saliency/SGFD-MT-walker-walk-v0_1",
+        }
 
 
 def write_logged_run(folder: Path, algo: str, config: dict[str, object], logged: dict[str, list[float]]) -> None:
@@ -126,3 +143,51 @@ def test_the_diagnostics_read_each_runs_own_threshold_and_name_the_most_salient_
         "SGFD moderate": "1000 ± 0",
     }
     assert {cells[7] for cells in rows.values()} == {"24 (67%)"}
+
+
+def write_record(study: Path, algo: str, seed: int, splits: tuple[str, ...]) -> Path:
+    """A run record with only its final evaluation (on ``splits``) and two logged steps."""
+    record = study / "runs" / algo / f"SGFD-MT-walker-walk-v0_{seed + 1}"
+    record.mkdir(parents=True)
+    with (record / "final_evaluation.csv").open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes"])
+        for split in splits:
+            writer.writerow([algo, ENV_ID, split, seed, 100.0 * (seed + 1), 1.5, 10])
+    (record / "diagnostics.csv").write_text("timesteps,sgfd/weight_ess\n1000,0.9\n2000,\n3000,0.7\n")
+    return record
+
+
+def test_a_record_without_its_whole_final_evaluation_is_trained_again_and_a_whole_one_is_not(tmp_path):
+    from zoo import sweep
+    from zoo.runs import RunRecord
+    from zoo.study import read_spec, study_records
+
+    spec = read_spec(write_spec(tmp_path / "study", seeds=[0, 1, 2]))
+    whole = write_record(tmp_path / "study", "sgfd_sac", 0, ("train", "interpolation", "extrapolation"))
+    write_record(tmp_path / "study", "sgfd_sac", 1, ("train", "interpolation"))  # its export was cut short
+    write_record(tmp_path / "study", "sgfd_sac", 7, ("train", "interpolation", "extrapolation"))  # not the spec's
+    record = RunRecord(whole)
+    assert [row["mean_reward"] for row in record.final_rows] == [100.0] * 3 and record.seed == 0
+    steps, ess = record.log("sgfd/weight_ess")
+    assert steps.tolist() == [1000, 3000] and ess.tolist() == [0.9, 0.7]
+    assert record.log("sgfd/weight_max")[0].size == 0
+
+    records = study_records(spec, tmp_path / "study")
+    assert [(r.algo, r.seed) for r in records] == [("sgfd_sac", 0)]
+    recorded = {(r.algo, r.env_id, r.seed) for r in records}
+    jobs, done, _ = sweep.plan(tmp_path / "logs", spec["algos"], spec["envs"], spec["seeds"], recorded)
+    assert done == [("sgfd_sac", ENV_ID, 0)]
+    assert [(job.algo, job.seed) for job in jobs] == [
+        ("sgfd_sac_no_saliency", 0), ("sgfd_sac", 1), ("sgfd_sac_no_saliency", 1),
+        ("sgfd_sac", 2), ("sgfd_sac_no_saliency", 2),
+    ]  # fmt: skip
+
+
+def test_an_unreadable_final_evaluation_is_named(tmp_path):
+    from zoo.runs import RunRecord, UnreadableFile
+
+    record = RunRecord(write_record(tmp_path, "sac", 0, ("train",)))
+    record.final_evaluation.write_text("algo,env,split,seed\nsac,x,train,zero\n")
+    with pytest.raises(UnreadableFile, match=r"final_evaluation\.csv is unreadable"):
+        _ = record.final_rows

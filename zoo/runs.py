@@ -12,6 +12,14 @@
         final_evaluation.json                   sgfd-zoo evaluate's result for the final model (reused while it fits)
     <log folder>/<algo>/<EnvName>_<id>.log      a sweep run's output, beside its folder
 
+A study keeps a finished run's compact record next to its spec, with no model (:class:`RunRecord`):
+
+    <study>/runs/<algo>/<EnvName>_<id>/         the same name as the run folder it was exported from
+        config.yml, args.yml                    the run's hyperparameters and arguments
+        evaluations_<split>.npz                 as in the run folder
+        diagnostics.csv                         the logged figures the study reads, one row per logged step
+        final_evaluation.csv                    the final model's evaluation, one row per split (written last)
+
 Every file the zoo writes here goes through :func:`atomic_write`: a temporary ``.tmp-<name>``, fsync'd, checked,
 renamed over the old one, and the folder fsync'd; a crash leaves the old file or the new one, never a mix.
 
@@ -334,24 +342,10 @@ def remove_checkpoint_files(folder: Path, keep: Iterable[Checkpoint]) -> list[st
 
 
 @dataclass(frozen=True)
-class RunFolder:
-    """One run: ``<log folder>/<algo>/<EnvName>_<id>``.
-
-    :param path: the run's folder
-    """
+class _NamedRun:
+    """What a run's place says: ``<algo>/<EnvName>_<id>``, and its evaluations during training."""
 
     path: Path
-
-    @classmethod
-    def at(cls, folder: Path, algo: str, env_id: str, run_id: int) -> RunFolder:
-        """The folder of run ``run_id`` of ``algo`` on ``env_id`` under the log folder ``folder``."""
-        return cls(Path(folder) / algo / f"{env_name(env_id)}_{run_id}")
-
-    @classmethod
-    def parse(cls, path: Path) -> RunFolder | None:
-        """``path`` as a run folder, or None if its name is not ``<EnvName>_<id>`` of an SGFD id."""
-        name, _, run_id = Path(path).name.rpartition("_")
-        return cls(Path(path)) if name in ENV_IDS_BY_NAME and run_id.isdigit() else None
 
     @property
     def algo(self) -> str:
@@ -364,6 +358,29 @@ class RunFolder:
     @property
     def run_id(self) -> int:
         return int(self.path.name.rpartition("_")[2])
+
+    def evaluations(self, split: str) -> dict[str, np.ndarray] | None:
+        """``timesteps``, ``results`` (evaluations x episodes) and ``ep_lengths`` of a split, or None."""
+        return _read_evaluations(self.path / f"evaluations_{split}.npz")
+
+
+@dataclass(frozen=True)
+class RunFolder(_NamedRun):
+    """One run: ``<log folder>/<algo>/<EnvName>_<id>``.
+
+    :param path: the run's folder
+    """
+
+    @classmethod
+    def at(cls, folder: Path, algo: str, env_id: str, run_id: int) -> RunFolder:
+        """The folder of run ``run_id`` of ``algo`` on ``env_id`` under the log folder ``folder``."""
+        return cls(Path(folder) / algo / f"{env_name(env_id)}_{run_id}")
+
+    @classmethod
+    def parse(cls, path: Path) -> RunFolder | None:
+        """``path`` as a run folder, or None if its name is not ``<EnvName>_<id>`` of an SGFD id."""
+        name, _, run_id = Path(path).name.rpartition("_")
+        return cls(Path(path)) if name in ENV_IDS_BY_NAME and run_id.isdigit() else None
 
     @property
     def log_file(self) -> Path:
@@ -400,12 +417,7 @@ class RunFolder:
     @property
     def accuracy_threshold(self) -> float:
         """The accuracy SGFD's classifier trained to in this run: its config's, else its reading's default."""
-        threshold = self.config.get("accuracy_threshold")
-        if threshold is None:
-            from sb3_sgfd.sac import READINGS  # here: reading run folders needs no torch (tests/test_layers.py)
-
-            threshold = READINGS[self.config.get("reading", "paper")].defaults["accuracy_threshold"]
-        return float(threshold)
+        return _accuracy_threshold(self.config)
 
     @property
     def seed(self) -> int | None:
@@ -483,14 +495,6 @@ class RunFolder:
             return False
         return all(checkpoint.num_timesteps <= steps for checkpoint in self.checkpoints())
 
-    def evaluations(self, split: str) -> dict[str, np.ndarray] | None:
-        """``timesteps``, ``results`` (evaluations x episodes) and ``ep_lengths`` of a split, or None."""
-        path = self.path / f"evaluations_{split}.npz"
-        if not path.exists():
-            return None
-        with np.load(path) as data:
-            return {key: data[key] for key in data.files}
-
     def log(self, key: str) -> tuple[np.ndarray, np.ndarray]:
         """(timesteps, values) of one logged figure over the whole run, sorted by timesteps.
 
@@ -548,19 +552,25 @@ def find_runs(
     :param env_ids: only these env ids
     :param finished: only finished runs (else every run folder)
     """
+    runs = [run for path in _run_paths(folder, algos, env_ids) if (run := RunFolder(path)).finished or not finished]
+    return sorted(runs, key=lambda run: (run.algo, run.env_id, run.run_id))
+
+
+def _run_paths(folder: Path, algos: Iterable[str] | None, env_ids: Iterable[str] | None) -> list[Path]:
+    """The ``<algo>/<EnvName>_<id>`` folders under ``folder``, optionally of some algos and env ids only."""
     algos, env_ids = set(algos or ()), set(env_ids or ())
-    runs = []
     if not Path(folder).is_dir():
-        return runs
+        return []
+    paths = []
     for algo_dir in sorted(path for path in Path(folder).iterdir() if path.is_dir()):
         if algos and algo_dir.name not in algos:
             continue
         for path in algo_dir.iterdir():
-            run = RunFolder.parse(path) if path.is_dir() else None
-            if run is None or (env_ids and run.env_id not in env_ids) or (finished and not run.finished):
-                continue
-            runs.append(run)
-    return sorted(runs, key=lambda run: (run.algo, run.env_id, run.run_id))
+            name, _, run_id = path.name.rpartition("_")
+            known = path.is_dir() and name in ENV_IDS_BY_NAME and run_id.isdigit()
+            if known and (not env_ids or ENV_IDS_BY_NAME[name] in env_ids):
+                paths.append(path)
+    return paths
 
 
 def runs_by_id(folder: Path, algo: str, env_id: str) -> dict[int, RunFolder]:
@@ -587,6 +597,131 @@ def select_run(folder: Path, env_id: str, algo: str, run_id: int | None = None) 
     if run_id not in runs:
         raise ZooError(f"--exp-id {run_id}: no finished run {run_id} of {algo} on {env_id}; choose from {sorted(runs)}")
     return runs[run_id]
+
+
+# -- a study's records of finished runs -----------------------------------------------------------------
+
+FINAL_EVALUATION_FIELDS = ("algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes")
+
+
+@dataclass(frozen=True)
+class RunRecord(_NamedRun):
+    """A finished run as a study keeps it next to its spec: ``<study>/runs/<algo>/<EnvName>_<id>``. What the
+    study's tables and figures read, so that a later session, on a machine without the log folder, continues
+    the study without training these runs again.
+
+    :param path: the record's folder
+    """
+
+    @property
+    def final_evaluation(self) -> Path:
+        return self.path / "final_evaluation.csv"
+
+    @property
+    def diagnostics(self) -> Path:
+        return self.path / "diagnostics.csv"
+
+    @functools.cached_property
+    def config(self) -> dict[str, Any]:
+        return _read_yaml(self.path / "config.yml")[0]
+
+    @property
+    def accuracy_threshold(self) -> float:
+        """The accuracy SGFD's classifier trained to in this run: its config's, else its reading's default."""
+        return _accuracy_threshold(self.config)
+
+    @functools.cached_property
+    def final_rows(self) -> list[dict[str, Any]]:
+        """The final model's evaluation, one row per split ([] when the record has none), as ``sgfd-zoo
+        evaluate`` gives it, ``run`` being the record's folder."""
+        if not self.final_evaluation.exists():
+            return []
+        with self.final_evaluation.open(newline="") as handle:
+            rows = list(csv.DictReader(handle))
+        types = {"seed": int, "mean_reward": float, "std_reward": float, "n_episodes": int}
+        try:
+            return [
+                {**{key: types.get(key, str)(row[key]) for key in FINAL_EVALUATION_FIELDS}, "run": str(self.path)}
+                for row in rows
+            ]
+        except (KeyError, TypeError, ValueError) as error:
+            raise UnreadableFile(f"{self.final_evaluation} is unreadable ({type(error).__name__}: {error})") from None
+
+    @property
+    def seed(self) -> int | None:
+        return self.final_rows[0]["seed"] if self.final_rows else None
+
+    @property
+    def complete(self) -> bool:
+        """Whether the record has the final model's evaluation on every split of its env."""
+        return {row["split"] for row in self.final_rows} >= set(sgfd_envs.splits(self.env_id))
+
+    def log(self, key: str) -> tuple[np.ndarray, np.ndarray]:
+        """(timesteps, values) of one logged figure kept in ``diagnostics.csv`` (empty when it was not kept)."""
+        steps, values = [], []
+        if self.diagnostics.exists():
+            with self.diagnostics.open(newline="") as handle:
+                for row in csv.DictReader(handle):
+                    if row.get(key):
+                        steps.append(int(row["timesteps"]))
+                        values.append(float(row[key]))
+        return np.array(steps, dtype=np.int64), np.array(values, dtype=np.float64)
+
+    def write(self, run: RunFolder, final_rows: list[dict[str, Any]], diagnostics: Callable[[Path], None]) -> None:
+        """This record of the finished ``run``: its files, then its final evaluation (last: a record with
+        one is whole).
+
+        :param run: the run folder
+        :param final_rows: its final model's evaluation (``sgfd-zoo evaluate``'s rows)
+        :param diagnostics: writes the logged figures to the path it is given
+        """
+        self.path.mkdir(parents=True, exist_ok=True)
+        self.final_evaluation.unlink(missing_ok=True)
+        for npz in sorted(run.path.glob("evaluations_*.npz")):
+            atomic_write(self.path / npz.name, lambda tmp, npz=npz: shutil.copyfile(npz, tmp))
+        for name in ("config.yml", "args.yml"):
+            if (run.config_dir / name).exists():
+                atomic_write(self.path / name, lambda tmp, name=name: shutil.copyfile(run.config_dir / name, tmp))
+        atomic_write(self.diagnostics, lambda tmp: diagnostics(Path(tmp)))
+
+        def write_rows(tmp: str) -> None:
+            with open(tmp, "w", newline="") as handle:
+                writer = csv.DictWriter(handle, FINAL_EVALUATION_FIELDS, extrasaction="ignore")
+                writer.writeheader()
+                writer.writerows(final_rows)
+
+        atomic_write(self.final_evaluation, write_rows)
+        self.__dict__.pop("final_rows", None)
+
+
+def find_records(
+    folder: Path, algos: Iterable[str] | None = None, env_ids: Iterable[str] | None = None
+) -> list[RunRecord]:
+    """The run records under a study's ``runs`` folder, sorted by algo, env and id (whole or not: see
+    :attr:`RunRecord.complete`).
+
+    :param folder: the study's ``runs`` folder
+    :param algos: only these algorithm keys
+    :param env_ids: only these env ids
+    """
+    records = [RunRecord(path) for path in _run_paths(folder, algos, env_ids)]
+    return sorted(records, key=lambda record: (record.algo, record.env_id, record.run_id))
+
+
+def _accuracy_threshold(config: dict[str, Any]) -> float:
+    threshold = config.get("accuracy_threshold")
+    if threshold is None:
+        from sb3_sgfd.sac import READINGS  # here: reading run folders needs no torch (tests/test_layers.py)
+
+        threshold = READINGS[config.get("reading", "paper")].defaults["accuracy_threshold"]
+    return float(threshold)
+
+
+def _read_evaluations(path: Path) -> dict[str, np.ndarray] | None:
+    if not path.exists():
+        return None
+    with np.load(path) as data:
+        return {key: data[key] for key in data.files}
 
 
 def _read_yaml(path: Path) -> tuple[dict[str, Any], str | None]:

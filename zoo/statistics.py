@@ -20,7 +20,7 @@ import numpy as np
 
 from sgfd_envs.benchmarks import dcs, dmcgb2
 from zoo.algos import algo_sort_key, column_name
-from zoo.runs import RunFolder
+from zoo.runs import RunFolder, RunRecord
 
 MAX_RETURN = 1000.0
 SCORE_FIELDS = ["algo", "env", "seed", "split", "return"]
@@ -182,7 +182,9 @@ def render_aggregate(rows: Sequence[dict[str, Any]], scores: Sequence[dict[str, 
     return out.getvalue()
 
 
-def efficiency_curves(runs: Sequence[RunFolder], split: str) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
+def efficiency_curves(
+    runs: Sequence[RunFolder | RunRecord], split: str
+) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
     """Training steps and, per algorithm, normalised evaluation returns (runs x tasks x steps) of one split,
     on the evaluation steps every run shares (None if they share none)."""
     by_algo: dict[str, dict[str, list[tuple[np.ndarray, np.ndarray]]]] = defaultdict(lambda: defaultdict(list))
@@ -219,7 +221,7 @@ def at_steps(curve: tuple[np.ndarray, np.ndarray], steps: Sequence[int]) -> list
 
 
 def write_figures(
-    rows: Sequence[dict[str, Any]], runs: Sequence[RunFolder], out: Path, reps: int = 2000, seed: int = 0
+    rows: Sequence[dict[str, Any]], runs: Sequence[RunFolder | RunRecord], out: Path, reps: int = 2000, seed: int = 0
 ) -> list[Path]:
     """Per split: interval estimates, probabilities of improvement and sample-efficiency curves (PNG)."""
     import matplotlib
@@ -305,7 +307,7 @@ def read_csv(path: Path) -> list[dict[str, Any]]:
 
 def write_statistics(
     results: Sequence[dict[str, Any]],
-    runs: Sequence[RunFolder],
+    runs: Sequence[RunFolder | RunRecord],
     folder: Path,
     reference: str | None = None,
     reps: int = 2000,

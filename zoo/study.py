@@ -2,11 +2,13 @@
 ``sgfd-zoo study SPEC``: a study from a spec file checked into the repository (``studies/<name>/spec.yml``).
 
 It runs the spec's sweep (algorithms x envs x seeds with its training flags; resumable: run the same command
-again to continue), evaluates every run on every split, and writes the compact results next to the spec: the
-paper-style tables (``results.*``), the aggregate statistics (``scores.csv``, ``aggregate.*``), their figures
-and the diagnostics of SGFD's weights over training (``plots/``), each run's evaluation files and logged SGFD
-figures (``runs/``), the exact command and the package versions. Models, replay buffers and checkpoints stay
-in the log folder.
+again to continue), evaluates every run on every split, and writes the compact results next to the spec: a
+record of each finished run (``runs/``: its evaluations during training, logged SGFD figures and final
+evaluation; :class:`zoo.runs.RunRecord`), and, computed from all the records, the paper-style tables
+(``results.*``), the aggregate statistics (``scores.csv``, ``aggregate.*``), their figures and the diagnostics
+of SGFD's weights over training (``plots/``, ``diagnostics.md``), with the exact command and the package
+versions. Models, replay buffers and checkpoints stay in the log folder. A recorded cell is not trained again:
+committed, the records let a session on another machine (without the log folder) continue the study.
 
 A spec (yaml):
 
@@ -26,7 +28,6 @@ import argparse
 import csv
 import platform
 import shlex
-import shutil
 import sys
 from importlib import metadata
 from pathlib import Path
@@ -35,10 +36,11 @@ from typing import Any
 import numpy as np
 import yaml
 
-from zoo import sweep
+from zoo import evaluate, sweep
 from zoo.algos import SGFD_ALGOS, algo_sort_key, column_name
 from zoo.arguments import ZooError, check_at_least, checked_names
-from zoo.runs import RunFolder, env_name, find_runs
+from zoo.runs import RunFolder, RunRecord, env_name, find_records, find_runs
+from zoo.statistics import write_statistics
 
 SPEC_KEYS = {"name", "description", "algos", "envs", "seeds", "train", "n_episodes", "reference"}
 TOP_SALIENCY = "sgfd/top_saliency_feature"  # the index of the most salient feature, per logged step
@@ -92,29 +94,40 @@ def sweep_arguments(spec: dict[str, Any], folder: Path) -> list[str]:
 
 
 def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[Path]:
-    """Copy the compact results of the log folder ``folder`` into ``out`` (the spec's folder)."""
-    written = []
-    for name in ("results.csv", "results.md", "scores.csv", "aggregate.csv", "aggregate.md"):
-        if (folder / name).exists():
-            written.append(Path(shutil.copy2(folder / name, out / name)))
-    plots = out / "plots"
-    plots.mkdir(exist_ok=True)
-    for png in sorted((folder / "plots").glob("*.png")):
-        written.append(Path(shutil.copy2(png, plots / png.name)))
-    runs = find_runs(folder, spec["algos"], spec["envs"])
-    for run in runs:
-        target = out / "runs" / run.algo / run.path.name
-        target.mkdir(parents=True, exist_ok=True)
-        for npz in sorted(run.path.glob("evaluations_*.npz")):
-            written.append(Path(shutil.copy2(npz, target / npz.name)))
-        shutil.copy2(run.config_dir / "config.yml", target / "config.yml")
-        written.append(write_diagnostics(run, target / "diagnostics.csv"))
-    written += diagnostics_figures(runs, plots)
-    (out / "diagnostics.md").write_text(diagnostics_summary(runs))
-    written.append(out / "diagnostics.md")
+    """Record the finished runs of the log folder ``folder`` in ``out/runs`` (the spec's folder), then write the
+    study's tables, statistics and figures from every record there: those of this log folder and those an
+    earlier session left."""
+    rows_by_run: dict[str, list[dict[str, Any]]] = {}
+    for row in evaluate.read_results(folder / "results.csv") if (folder / "results.csv").exists() else []:
+        rows_by_run.setdefault(row["run"], []).append(row)
+    for run in find_runs(folder, spec["algos"], spec["envs"]):
+        if str(run.path) not in rows_by_run:
+            continue  # not evaluated: recorded by the next export
+        record = RunRecord(out / "runs" / run.algo / run.path.name)
+        others = [
+            other.path
+            for other in find_records(out / "runs", [run.algo], [run.env_id])
+            if other.seed == run.seed and other.path != record.path
+        ]
+        if others:
+            raise ZooError(f"{run.path} (seed {run.seed}) is already recorded as {others[0]}: remove one of them")
+        record.write(run, rows_by_run[str(run.path)], lambda path, run=run: write_diagnostics(run, path))
+    records = study_records(spec, out)
+    results = [{**row, "run": str(record.path.relative_to(out))} for record in records for row in record.final_rows]
+    written = list(evaluate.write_results(results, out))
+    written += write_statistics(results, records, out, spec["reference"])[1]
+    written += diagnostics_figures(records, out / "plots")
+    (out / "diagnostics.md").write_text(diagnostics_summary(records))
     (out / "command.txt").write_text(command + "\n")
     (out / "versions.txt").write_text(versions())
-    return [*written, out / "command.txt", out / "versions.txt"]
+    return [*written, out / "diagnostics.md", out / "command.txt", out / "versions.txt"]
+
+
+def study_records(spec: dict[str, Any], out: Path) -> list[RunRecord]:
+    """The whole records of the spec's cells in ``out/runs`` (a record without its final evaluation is a run
+    whose export was cut short: its cell is trained again)."""
+    records = [record for record in find_records(out / "runs", spec["algos"], spec["envs"]) if record.complete]
+    return [record for record in records if record.seed in spec["seeds"]]
 
 
 def write_diagnostics(run: RunFolder, path: Path) -> Path:
@@ -130,7 +143,7 @@ def write_diagnostics(run: RunFolder, path: Path) -> Path:
     return path
 
 
-def diagnostics_figures(runs: list[RunFolder], out: Path) -> list[Path]:
+def diagnostics_figures(runs: list[RunFolder | RunRecord], out: Path) -> list[Path]:
     """Per env: the classifier's accuracy, the weights' ESS and their range over training, per algorithm
     (mean over seeds, and each seed faintly)."""
     from matplotlib.figure import Figure
@@ -178,7 +191,7 @@ def diagnostics_figures(runs: list[RunFolder], out: Path) -> list[Path]:
     return written
 
 
-def diagnostics_summary(runs: list[RunFolder]) -> str:
+def diagnostics_summary(runs: list[RunFolder | RunRecord]) -> str:
     """Markdown, per env and algorithm (mean ± std over seeds): when the classifier first reached its threshold,
     the weights' ESS and range once it had, the feature most often the most salient (and in what share of all
     the seeds' logs), and the evaluation returns at the end of training."""
@@ -210,7 +223,7 @@ def diagnostics_summary(runs: list[RunFolder]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _final_return(run: RunFolder, split: str) -> float | None:
+def _final_return(run: RunFolder | RunRecord, split: str) -> float | None:
     evaluations = run.evaluations(split)
     return None if evaluations is None or not len(evaluations["results"]) else float(evaluations["results"][-1].mean())
 
@@ -266,27 +279,28 @@ def main(argv: list[str]) -> int:
     # The command that trains and exports (an --export-only pass records the study's own command, not itself).
     command = shlex.join(["sgfd-zoo", "study", *(arg for arg in argv if arg != "--export-only")])
     sweep_argv = [*sweep_arguments(spec, folder), "--progress-interval", str(args.progress_interval)]
+    recorded = {(record.algo, record.env_id, record.seed) for record in study_records(spec, out)}
     if args.export_only:
-        if not find_runs(folder, spec["algos"], spec["envs"]):
-            raise ZooError(f"--export-only: no finished run under {folder}")
-        from zoo import evaluate
-
-        evaluate_argv = ["-f", str(folder), "--algo", *spec["algos"], "--env", *spec["envs"]]
-        evaluate.main([*evaluate_argv, "--n-episodes", str(spec["n_episodes"]), "--reference", spec["reference"]])
+        if not recorded and not find_runs(folder, spec["algos"], spec["envs"]):
+            raise ZooError(f"--export-only: no finished run under {folder} and none recorded in {out / 'runs'}")
+        if find_runs(folder, spec["algos"], spec["envs"]):
+            evaluate_argv = ["-f", str(folder), "--algo", *spec["algos"], "--env", *spec["envs"]]
+            evaluate.main([*evaluate_argv, "--n-episodes", str(spec["n_episodes"]), "--reference", spec["reference"]])
         status = 0
     else:
         print(
             f"study {spec['name']}: {len(spec['algos'])} algos x {len(spec['envs'])} envs x {len(spec['seeds'])} seeds"
+            f" ({len(recorded)} recorded in {out / 'runs'} already)"
         )
-        status = sweep.main(sweep_argv)
+        status = sweep.main(sweep_argv, recorded=recorded)
     written = export(spec, folder, out, command)
     print(f"study {spec['name']}: wrote {len(written)} files to {out}")
     if (out / "aggregate.md").exists():
         print((out / "aggregate.md").read_text())
-    finished = len(find_runs(folder, spec["algos"], spec["envs"]))
+    finished = len(study_records(spec, out))
     total = len(spec["algos"]) * len(spec["envs"]) * len(spec["seeds"])
     if finished < total:
-        print(f"study {spec['name']}: {finished} of {total} runs finished; run the same command to continue")
+        print(f"study {spec['name']}: {finished} of {total} runs recorded; run the same command to continue")
     return status if finished == total or status else 1
 
 

@@ -21,7 +21,7 @@ import socket
 import sys
 import time
 import traceback
-from collections.abc import Iterator, Sequence
+from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -91,10 +91,15 @@ class Job:
 
 
 def plan(
-    folder: Path, algos: Sequence[str], env_ids: Sequence[str], seeds: Sequence[int]
+    folder: Path,
+    algos: Sequence[str],
+    env_ids: Sequence[str],
+    seeds: Sequence[int],
+    recorded: Collection[tuple[str, str, int]] = (),
 ) -> tuple[list[Job], list[tuple[str, str, int]], list[str]]:
     """
-    The runs still to train (new or to resume), the (algo, env, seed) already finished in ``folder``, and
+    The runs still to train (new or to resume), the (algo, env, seed) already finished in ``folder`` or
+    ``recorded``, and
     one line per unreadable file of a run folder (such a folder is read as if that file were absent: a run
     whose args are unreadable has no known seed, one whose checkpoint index is unreadable resumes from the
     checkpoint files it has).
@@ -103,9 +108,10 @@ def plan(
     :param algos: Algorithm keys
     :param env_ids: SGFD env ids
     :param seeds: Training seeds
+    :param recorded: (algo, env, seed) finished elsewhere (a study's records, from an earlier session)
     """
     problems = [problem for run in find_runs(folder, algos, env_ids, finished=False) for problem in run.problems]
-    finished = {(run.algo, run.env_id, run.seed) for run in find_runs(folder, algos, env_ids)}
+    finished = {(run.algo, run.env_id, run.seed) for run in find_runs(folder, algos, env_ids)} | set(recorded)
     jobs, done = [], []
     assigned: dict[tuple[str, str], set[int]] = {}
     # Seed by seed: the first runs to finish fill a whole table for one seed, not many seeds of one cell.
@@ -309,9 +315,14 @@ def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
     return args, train_args
 
 
-def main(argv: list[str]) -> int:
+def main(argv: list[str], recorded: Collection[tuple[str, str, int]] = ()) -> int:
+    """``sgfd-zoo sweep``.
+
+    :param argv: its command line
+    :param recorded: (algo, env, seed) finished elsewhere, not to train (a study's records)
+    """
     args, train_args = parse_args(argv)
-    jobs, done, problems = plan(args.folder, args.algos, args.envs, args.seeds)
+    jobs, done, problems = plan(args.folder, args.algos, args.envs, args.seeds, recorded)
     for problem in problems:
         print(f"sweep: {problem}; read as if it were absent")
     n_resume = sum(job.run.checkpoint is not None for job in jobs)
