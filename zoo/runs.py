@@ -379,8 +379,7 @@ class RunFolder(_NamedRun):
     @classmethod
     def parse(cls, path: Path) -> RunFolder | None:
         """``path`` as a run folder, or None if its name is not ``<EnvName>_<id>`` of an SGFD id."""
-        name, _, run_id = Path(path).name.rpartition("_")
-        return cls(Path(path)) if name in ENV_IDS_BY_NAME and run_id.isdigit() else None
+        return cls(Path(path)) if _run_env_id(Path(path)) is not None else None
 
     @property
     def log_file(self) -> Path:
@@ -566,11 +565,16 @@ def _run_paths(folder: Path, algos: Iterable[str] | None, env_ids: Iterable[str]
         if algos and algo_dir.name not in algos:
             continue
         for path in algo_dir.iterdir():
-            name, _, run_id = path.name.rpartition("_")
-            known = path.is_dir() and name in ENV_IDS_BY_NAME and run_id.isdigit()
-            if known and (not env_ids or ENV_IDS_BY_NAME[name] in env_ids):
+            env_id = _run_env_id(path) if path.is_dir() else None
+            if env_id is not None and (not env_ids or env_id in env_ids):
                 paths.append(path)
     return paths
+
+
+def _run_env_id(path: Path) -> str | None:
+    """The env id of a run's folder name ``<EnvName>_<id>``, or None if it is not one of an SGFD id."""
+    name, _, run_id = path.name.rpartition("_")
+    return ENV_IDS_BY_NAME[name] if name in ENV_IDS_BY_NAME and run_id.isdigit() else None
 
 
 def runs_by_id(folder: Path, algo: str, env_id: str) -> dict[int, RunFolder]:
