@@ -107,7 +107,7 @@ def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[
         others = [
             other.path
             for other in find_records(out / "runs", [run.algo], [run.env_id])
-            if other.seed == run.seed and other.path != record.path
+            if run.seed is not None and other.seed == run.seed and other.path != record.path
         ]
         if others:
             raise ZooError(f"{run.path} (seed {run.seed}) is already recorded as {others[0]}: remove one of them")
