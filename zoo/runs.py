@@ -359,6 +359,26 @@ class _NamedRun:
     def run_id(self) -> int:
         return int(self.path.name.rpartition("_")[2])
 
+    @property
+    def config_dir(self) -> Path:
+        """Where its ``config.yml`` (and ``args.yml``) lie."""
+        return self.path
+
+    @functools.cached_property
+    def config(self) -> dict[str, Any]:
+        """The hyperparameters the run trained with ({} before the run wrote them, or when unreadable)."""
+        return _read_yaml(self.config_dir / "config.yml")[0]
+
+    @property
+    def accuracy_threshold(self) -> float:
+        """The accuracy SGFD's classifier trained to in this run: its config's, else its reading's default."""
+        threshold = self.config.get("accuracy_threshold")
+        if threshold is None:
+            from sb3_sgfd.sac import READINGS  # here: reading run folders needs no torch (tests/test_layers.py)
+
+            threshold = READINGS[self.config.get("reading", "paper")].defaults["accuracy_threshold"]
+        return float(threshold)
+
     def evaluations(self, split: str) -> dict[str, np.ndarray] | None:
         """``timesteps``, ``results`` (evaluations x episodes) and ``ep_lengths`` of a split, or None."""
         return _read_evaluations(self.path / f"evaluations_{split}.npz")
@@ -407,16 +427,6 @@ class RunFolder(_NamedRun):
     def args(self) -> dict[str, Any]:
         """rl-zoo3's saved command-line arguments ({} before the run wrote them, or when unreadable)."""
         return _read_yaml(self.config_dir / "args.yml")[0]
-
-    @functools.cached_property
-    def config(self) -> dict[str, Any]:
-        """The hyperparameters the run trained with ({} before the run wrote them, or when unreadable)."""
-        return _read_yaml(self.config_dir / "config.yml")[0]
-
-    @property
-    def accuracy_threshold(self) -> float:
-        """The accuracy SGFD's classifier trained to in this run: its config's, else its reading's default."""
-        return _accuracy_threshold(self.config)
 
     @property
     def seed(self) -> int | None:
@@ -626,15 +636,6 @@ class RunRecord(_NamedRun):
         return self.path / "diagnostics.csv"
 
     @functools.cached_property
-    def config(self) -> dict[str, Any]:
-        return _read_yaml(self.path / "config.yml")[0]
-
-    @property
-    def accuracy_threshold(self) -> float:
-        """The accuracy SGFD's classifier trained to in this run: its config's, else its reading's default."""
-        return _accuracy_threshold(self.config)
-
-    @functools.cached_property
     def final_rows(self) -> list[dict[str, Any]]:
         """The final model's evaluation, one row per split ([] when the record has none), as ``sgfd-zoo
         evaluate`` gives it, ``run`` being the record's folder."""
@@ -710,15 +711,6 @@ def find_records(
     """
     records = [RunRecord(path) for path in _run_paths(folder, algos, env_ids)]
     return sorted(records, key=lambda record: (record.algo, record.env_id, record.run_id))
-
-
-def _accuracy_threshold(config: dict[str, Any]) -> float:
-    threshold = config.get("accuracy_threshold")
-    if threshold is None:
-        from sb3_sgfd.sac import READINGS  # here: reading run folders needs no torch (tests/test_layers.py)
-
-        threshold = READINGS[config.get("reading", "paper")].defaults["accuracy_threshold"]
-    return float(threshold)
 
 
 def _read_evaluations(path: Path) -> dict[str, np.ndarray] | None:

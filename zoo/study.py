@@ -100,17 +100,14 @@ def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[
     rows_by_run: dict[str, list[dict[str, Any]]] = {}
     for row in evaluate.read_results(folder / "results.csv") if (folder / "results.csv").exists() else []:
         rows_by_run.setdefault(row["run"], []).append(row)
+    recorded = {(r.algo, r.env_id, r.seed): r.path for r in find_records(out / "runs", spec["algos"], spec["envs"])}
     for run in find_runs(folder, spec["algos"], spec["envs"]):
         if str(run.path) not in rows_by_run:
             continue  # not evaluated: recorded by the next export
         record = RunRecord(out / "runs" / run.algo / run.path.name)
-        others = [
-            other.path
-            for other in find_records(out / "runs", [run.algo], [run.env_id])
-            if run.seed is not None and other.seed == run.seed and other.path != record.path
-        ]
-        if others:
-            raise ZooError(f"{run.path} (seed {run.seed}) is already recorded as {others[0]}: remove one of them")
+        other = recorded.get((run.algo, run.env_id, run.seed)) if run.seed is not None else None
+        if other is not None and other != record.path:
+            raise ZooError(f"{run.path} (seed {run.seed}) is already recorded as {other}: remove one of them")
         record.write(run, rows_by_run[str(run.path)], lambda path, run=run: write_diagnostics(run, path))
     records = study_records(spec, out)
     results = [{**row, "run": str(record.path.relative_to(out))} for record in records for row in record.final_rows]
@@ -281,9 +278,10 @@ def main(argv: list[str]) -> int:
     sweep_argv = [*sweep_arguments(spec, folder), "--progress-interval", str(args.progress_interval)]
     recorded = {(record.algo, record.env_id, record.seed) for record in study_records(spec, out)}
     if args.export_only:
-        if not recorded and not find_runs(folder, spec["algos"], spec["envs"]):
+        log_runs = find_runs(folder, spec["algos"], spec["envs"])
+        if not recorded and not log_runs:
             raise ZooError(f"--export-only: no finished run under {folder} and none recorded in {out / 'runs'}")
-        if find_runs(folder, spec["algos"], spec["envs"]):
+        if log_runs:
             evaluate_argv = ["-f", str(folder), "--algo", *spec["algos"], "--env", *spec["envs"]]
             evaluate.main([*evaluate_argv, "--n-episodes", str(spec["n_episodes"]), "--reference", spec["reference"]])
         status = 0
