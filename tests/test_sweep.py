@@ -5,7 +5,10 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import os
+import re
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -296,3 +299,47 @@ def test_sweep_on_an_existing_cluster_skips_finished_runs_and_resumes_a_crashed_
     assert sorted(path.name for path in (folder / "sgfd_sac").iterdir() if path.is_dir()) == [f"{NAME}_1", f"{NAME}_2"]
     log = (folder / "sgfd_sac" / f"{NAME}_1.log").read_text()
     assert "(new run)" in log and "(resuming from its checkpoint)" in log  # appended, the first attempt kept
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_each_running_run_at_a_checkpoint_that_the_same_command_resumes(tmp_path: Path) -> None:
+    # A long run without periodic checkpoints: whatever checkpoint it has, the Ctrl-C wrote.
+    argv = ["sweep", "--algos", "sac", "--envs", ENV, "--seeds", "0", "1", "-f", str(tmp_path / "logs")]
+    argv += ["--num-cpus", "1", "--no-evaluate", "--progress-interval", "0.5"]
+    argv += ["--quick", "-n", "100000", "--eval-freq", "-1", "--save-freq", "100000", "--verbose", "0"]
+    out_file = tmp_path / "out.txt"
+    with out_file.open("w") as out:
+        # A process group of its own, as a terminal's foreground job: the Ctrl-C reaches the sweep and Ray's
+        # own processes alike.
+        sweep_process = subprocess.Popen(
+            [sys.executable, "-m", "zoo.cli", *argv], stdout=out, stderr=subprocess.STDOUT, start_new_session=True
+        )
+        try:
+            deadline, seen = time.monotonic() + 300, 0
+            while seen < 1100 and time.monotonic() < deadline and sweep_process.poll() is None:  # past learning_starts
+                steps = re.findall(r"sac walker-walk seed 0 +(\d+)/100000", out_file.read_text())
+                seen = int(steps[-1]) if steps else 0
+                time.sleep(0.5)
+            assert seen >= 1100, out_file.read_text()
+            os.killpg(sweep_process.pid, signal.SIGINT)
+            code = sweep_process.wait(timeout=180)
+        finally:
+            if sweep_process.poll() is None:
+                os.killpg(sweep_process.pid, signal.SIGKILL)
+    text = out_file.read_text()
+    assert code == 130, text
+    run = RunFolder(tmp_path / "logs" / "sac" / f"{NAME}_1")
+    assert not run.finished and run.checkpoint is not None, text
+    stopped_at = run.checkpoint.num_timesteps
+    assert seen <= stopped_at < 100000
+    assert f"stopped sac on {ENV} seed 0 at its checkpoint at {stopped_at} steps ({run.path})" in text
+    assert "sweep: interrupted; the same command resumes it" in text
+    log = run.path.with_name(f"{run.path.name}.log").read_text()
+    assert f"sgfd-zoo train: Ctrl-C at {stopped_at} steps" in log and "Traceback" not in log
+    # Seed 1 was waiting: it never started. The same command resumes seed 0 from the Ctrl-C's checkpoint.
+    jobs, done, problems = sweep.plan(tmp_path / "logs", ["sac"], [ENV], [0, 1])
+    assert [(job.seed, job.run_dir, job.run.checkpoint) for job in jobs] == [
+        (0, run.path, run.checkpoint),
+        (1, tmp_path / "logs" / "sac" / f"{NAME}_2", None),
+    ]
+    assert done == [] and problems == []

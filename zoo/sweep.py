@@ -6,8 +6,9 @@ Each run is ``sgfd-zoo train`` in a fresh Ray worker process, writing the log la
 LOGDIR/<algo>/<EnvName>_<run id>/, its output going to LOGDIR/<algo>/<EnvName>_<run id>.log. A run's id
 is its seed unless that folder already holds another seed's run. Running the same command again resumes
 the sweep: finished runs are skipped, and unfinished ones continue from their last checkpoint (one none of
-whose checkpoints verifies starts again from step 0, saying so in its log). A run folder with unreadable
-files is reported and planned around; if the progress board dies, the runs go on without live progress.
+whose checkpoints verifies starts again from step 0, saying so in its log). Ctrl-C stops each running run
+at a checkpoint, as it stops ``sgfd-zoo train``. A run folder with unreadable files is reported and planned
+around; if the progress board dies, the runs go on without live progress.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from typing import Any
 import sgfd_envs  # before anything imports dm_control: it picks MuJoCo's headless GL backend
 from zoo import evaluate, training
 from zoo.algos import SGFD_ALGOS
-from zoo.arguments import ZooError, checked_names, flag_value, has_flag
+from zoo.arguments import TrainingStopped, ZooError, checked_names, flag_value, has_flag
 from zoo.progress import LiveView, ProgressBoard, progress_block, returns_text
 from zoo.runs import NoUsableCheckpoint, RunFolder, find_runs, runs_by_id
 
@@ -192,6 +193,9 @@ def train_job(job: Job, train_args: list[str], cwd: str, board: Any = None) -> b
                 print(f"{error}\n=== so starting it again from step 0", flush=True)
                 resume = False
                 training.train(argv, progress_reporter=reporter)
+        except TrainingStopped as error:
+            print(f"sgfd-zoo train: {error}", flush=True)  # where it stopped and how it goes on, in one line
+            raise
         except SystemExit as error:
             # argparse exits on bad flags; a SystemExit would end the Ray worker (a "crash" Ray retries).
             sys.stderr.flush()
@@ -352,7 +356,8 @@ def main(argv: list[str], recorded: Collection[tuple[str, str, int]] = ()) -> in
 
 def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -> list[tuple[Job, str]]:
     """Run ``jobs`` as Ray tasks, showing their progress; returns the failed ones with a one-line reason.
-    Ray is shut down after."""
+    Ray is shut down after. Ctrl-C stops the running runs at a checkpoint each, then raises
+    KeyboardInterrupt; a second Ctrl-C stops them at once."""
     import ray
 
     _start_ray(args)
@@ -369,41 +374,80 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
         )(train_job)
         cwd = os.getcwd()
         pending = {task.options(name=f"sweep {job}").remote(job, train_args, cwd, board): job for job in jobs}
-        status: dict[str, str] = {}
-        reports: dict[str, dict[str, Any]] = {}
-        failures = []
+        failures: list[tuple[Job, str]] = []
         with LiveView(args.progress_interval) as view:
-            while pending:
-                done, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
-                if board is not None:
-                    try:
-                        reports = ray.get(board.snapshot.remote())
-                    except ray.exceptions.RayActorError as error:
-                        # Only the live view is lost: the runs report to a dead actor, which Ray drops.
-                        board, reports = None, {}
-                        view.message(f"sweep: the progress board stopped ({_reason(error)}); the runs go on")
-                for ref in done:
-                    job = pending.pop(ref)
-                    count = f"[{len(jobs) - len(pending)}/{len(jobs)}]"
-                    report = reports.get(job.name, {})
-                    try:
-                        resumed = ray.get(ref)
-                    except ray.exceptions.RayError as error:
-                        failures.append((job, _reason(error)))
-                        status[job.name] = "FAILED"
-                        view.message(f"{count} FAILED {job}: {failures[-1][1]} (log: {job.log_file})")
-                    else:
-                        status[job.name] = "finished"
-                        evaluated = returns_text(report)
-                        view.message(
-                            f"{count} finished {job}{' (resumed)' if resumed else ''}"
-                            + (f": {evaluated}" if evaluated else "")
-                            + f" ({job.run_dir})"
-                        )
-                view.show(progress_block([job.name for job in jobs], reports, status), force=not pending)
+            try:
+                _wait_for(pending, jobs, board, view, failures)
+            except KeyboardInterrupt:
+                _stop_at_checkpoints(pending, view)
+                raise
         return failures
     finally:
         ray.shutdown()
+
+
+def _wait_for(
+    pending: dict[Any, Job], jobs: list[Job], board: Any, view: LiveView, failures: list[tuple[Job, str]]
+) -> None:
+    """Until no run is ``pending``: show their progress, a line per run as it ends, the failed ones added to
+    ``failures``."""
+    import ray
+
+    status: dict[str, str] = {}
+    reports: dict[str, dict[str, Any]] = {}
+    while pending:
+        done, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
+        if board is not None:
+            try:
+                reports = ray.get(board.snapshot.remote())
+            except ray.exceptions.RayActorError as error:
+                # Only the live view is lost: the runs report to a dead actor, which Ray drops.
+                board, reports = None, {}
+                view.message(f"sweep: the progress board stopped ({_reason(error)}); the runs go on")
+        for ref in done:
+            job = pending.pop(ref)
+            count = f"[{len(jobs) - len(pending)}/{len(jobs)}]"
+            report = reports.get(job.name, {})
+            try:
+                resumed = ray.get(ref)
+            except ray.exceptions.RayError as error:
+                failures.append((job, _reason(error)))
+                status[job.name] = "FAILED"
+                view.message(f"{count} FAILED {job}: {failures[-1][1]} (log: {job.log_file})")
+            else:
+                status[job.name] = "finished"
+                evaluated = returns_text(report)
+                view.message(
+                    f"{count} finished {job}{' (resumed)' if resumed else ''}"
+                    + (f": {evaluated}" if evaluated else "")
+                    + f" ({job.run_dir})"
+                )
+        view.show(progress_block([job.name for job in jobs], reports, status), force=not pending)
+
+
+def _stop_at_checkpoints(pending: dict[Any, Job], view: LiveView) -> None:
+    """Stop every ``pending`` run as a Ctrl-C stops ``sgfd-zoo train`` (at a checkpoint, at a step boundary),
+    wait for them, and say where each stopped. A waiting run is dropped. A second Ctrl-C stops the waiting
+    (then ``ray.shutdown`` ends the runs where they are)."""
+    import ray
+
+    view.message(
+        "sweep: interrupted; the running runs stop at a checkpoint each (Ctrl-C again: at once, losing the steps "
+        "since their last checkpoint)"
+    )
+    # A running Ray task's cancel raises KeyboardInterrupt in it through its SIGINT handler: the train's own
+    # deferred Ctrl-C, which checkpoints and stops. A terminal's Ctrl-C does not reach the workers themselves
+    # (each has a process group of its own), so this is their only one.
+    before = {job: job.run.checkpoint for job in pending.values()}
+    for ref in pending:
+        ray.cancel(ref)
+    ray.wait(list(pending), num_returns=len(pending))
+    for job in pending.values():
+        run = job.run
+        if run.finished:
+            view.message(f"finished {job} ({job.run_dir})")
+        elif run.checkpoint is not None and run.checkpoint != before[job]:
+            view.message(f"stopped {job} at its checkpoint at {run.checkpoint.num_timesteps} steps ({job.run_dir})")
 
 
 def _start_ray(args: argparse.Namespace) -> None:
