@@ -207,6 +207,9 @@ HIDE_MODES = ("nothing", "sky", "backdrop")
 # Offset of the distraction's seed stream: reset(seed=s) seeds the physics from s and the distraction from
 # (s, this), so a seed gives the same physics in every split.
 DISTRACTION_SEED_STREAM = 0x5EED
+# The model fields a dm_control task may draw anew each episode (reacher's target place and size, finger's turn
+# target): part of an env's state, since the simulator's state does not hold them.
+TASK_MODEL_FIELDS = ("geom_pos", "geom_size", "site_pos", "site_size")
 
 
 class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -426,10 +429,11 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
     def get_state(self) -> dict[str, Any]:
         """Everything the env's next steps depend on: the simulator's integration state (MuJoCo's
         ``mjSTATE_INTEGRATION``: positions, velocities, activations, controls, time and the solver's warm start),
-        dm_control's step counters, the task's and the env's random generators, the episode's agent steps and
-        background phase, and the distraction's generator. ``set_state`` on an env made with the same arguments
-        continues bit for bit. A distraction with state of its own beyond its generator (the benchmark ids')
-        must provide ``get_state``/``set_state``; without them this raises ``NotImplementedError``.
+        the model fields a task sets per episode (:data:`TASK_MODEL_FIELDS`), dm_control's step counters, the
+        task's and the env's random generators, the episode's agent steps and background phase, and the
+        distraction's generator and state. ``set_state`` on an env made with the same arguments continues bit for
+        bit. A distraction with state of its own beyond its generator (the benchmark ids')
+        provides ``get_state``/``set_state``; one without them makes this raise ``NotImplementedError``.
         """
         if self.state_unavailable is not None:
             raise NotImplementedError(f"{self.spec.id if self.spec else 'this env'}: {self.state_unavailable}")
@@ -437,6 +441,7 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         distraction = None if self._distraction is None else self._distraction.get_state()
         return {
             "physics": physics.get_state(mujoco.mjtState.mjSTATE_INTEGRATION),
+            "model": {name: getattr(physics.model, name).copy() for name in TASK_MODEL_FIELDS},
             "dm_env": {"step_count": self._dm_env._step_count, "reset_next_step": self._dm_env._reset_next_step},
             "task_random": self._dm_env.task.random.get_state(),
             "np_random": self.np_random.bit_generator.state,
@@ -453,6 +458,8 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         """
         physics = self._dm_env.physics
         physics.set_state(np.asarray(state["physics"]), mujoco.mjtState.mjSTATE_INTEGRATION)
+        for name, value in state.get("model", {}).items():  # (checkpoints from before it was saved lack it)
+            getattr(physics.model, name)[:] = value
         # dm_control ends every step with mj_step1 (the position- and velocity-dependent quantities, which its
         # next step starts from): the same here.
         mujoco.mj_step1(physics.model.ptr, physics.data.ptr)

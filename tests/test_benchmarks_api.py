@@ -2,6 +2,7 @@
 rewards, and a distraction that never changes the task (same seed, same physics and rewards, in every split)."""
 
 import math
+import pickle
 import warnings
 
 import gymnasium as gym
@@ -165,6 +166,50 @@ def test_a_distraction_never_changes_the_task(env_id):
         np.testing.assert_array_equal(split_states, states, err_msg=f"{split} {kwargs}")
         np.testing.assert_array_equal(split_rewards, rewards, err_msg=f"{split} {kwargs}")
         assert not np.array_equal(split_observations, observations), f"{split} {kwargs} shows the train picture"
+
+
+# Every part of every benchmark's distraction, dynamic where DCS can be.
+RESUMED = [
+    ("DMCGB/walker-walk-v0", "color_hard", {}),
+    ("DMCGB/finger-spin-v0", "video_hard", {}),
+    ("DMCGB2/walker-walk-v0", "rotate_shift_hard", {}),
+    ("DMCGB2/cheetah-run-v0", "color_video_hard", {}),
+    ("DCS/walker-walk-v0", "hard", {"dynamic": True}),
+    ("DCS/reacher-easy-v0", "medium", {}),
+]
+
+
+@pytest.mark.parametrize(("env_id", "split", "kwargs"), RESUMED)
+def test_an_env_restored_from_its_state_continues_as_the_unbroken_one_bit_for_bit(env_id, split, kwargs):
+    """What a checkpoint holds of an env (``get_training_state``), set on a fresh env that has been elsewhere:
+    the same pictures, rewards and episode ends from then on, across new episodes (6 steps each), whose colours,
+    clips, camera poses and videos are drawn again."""
+
+    def make(seed):
+        return sgfd_envs.make_domain_vec_env(env_id, split, seed=seed, image_size=16, max_episode_steps=6, **kwargs)
+
+    unbroken, restored = make(4), make(9)
+    actions = np.random.default_rng(0).uniform(-1, 1, (24, 1, *unbroken.action_space.shape)).astype(np.float32)
+    unbroken.reset()
+    for action in actions[:8]:
+        unbroken.step(action)
+    state = pickle.loads(pickle.dumps(unbroken.env_method("get_training_state")))
+    restored.reset()
+    for action in actions[:3]:
+        restored.step(action)
+    restored.env_method("set_training_state", state[0], indices=[0])
+    pictures = set()
+    for step, action in enumerate(actions[8:]):
+        expected, got = unbroken.step(action), restored.step(action)
+        for name, a, b in zip(("observation", "reward", "done"), expected[:3], got[:3], strict=True):
+            np.testing.assert_array_equal(b, a, err_msg=f"{name} at step {8 + step}")
+        if expected[2][0]:
+            terminal = [info["terminal_observation"] for info in (expected[3][0], got[3][0])]
+            np.testing.assert_array_equal(terminal[1], terminal[0], err_msg=f"last picture at step {8 + step}")
+        pictures.add(expected[0].tobytes())
+    assert len(pictures) > 10  # the distraction moves: the comparison is of different pictures
+    unbroken.close()
+    restored.close()
 
 
 # The tasks the SGFD ids did not have: their rewards must be dm_control's to the bit.

@@ -24,8 +24,10 @@ changed (DCS: every simulator step); frames are taken in file-name order.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -209,6 +211,18 @@ class CameraWalk:
         self.roll_velocity = roll - self.roll
         self.roll = roll
 
+    # What start() draws and advance() moves: the episode's ranges, start target and pose, and its velocities.
+    _STATE = ("_initial_target", "velocity_scale", "low", "high", "spherical", "roll", "velocity", "roll_velocity")
+
+    def get_state(self) -> dict[str, Any]:
+        """The episode's ranges and start target, the pose and its velocities (empty before the first episode)."""
+        return {name: copy.deepcopy(getattr(self, name)) for name in self._STATE if hasattr(self, name)}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Continue from ``get_state``'s state."""
+        for name, value in state.items():
+            setattr(self, name, copy.deepcopy(value))
+
     def pose(self) -> tuple[np.ndarray, np.ndarray]:
         """The camera's world position and orientation (3x3) now."""
         position = to_cartesian(self.spherical)
@@ -257,6 +271,13 @@ class ColourWalk:
             self.current = np.clip(self.current + step, self.low, self.high)
             self._model.mat_rgba[:, :3] = self.current
 
+    def get_state(self) -> dict[str, np.ndarray]:
+        return {"current": self.current.copy()}
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        self.current = np.array(state["current"])
+        self._model.mat_rgba[:, :3] = self.current
+
 
 # --- background ------------------------------------------------------------------------------------------
 
@@ -304,6 +325,21 @@ class SkyVideo:
             self.position, self.direction = 0, abs(self.direction)
         if self.position >= len(self.frames):
             self.position, self.direction = len(self.frames) - 1, -abs(self.direction)
+
+    def get_state(self) -> dict[str, Any]:
+        """The episode's video and frames, and where in them the sky is."""
+        return {
+            "video_index": self.video_index,
+            "frames": list(self.frames),
+            "position": self.position,
+            "direction": self.direction,
+        }
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        self._physics.model.mat_rgba[self._grid, 3] = self.ground_alpha
+        self.video_index, self.frames = state["video_index"], list(state["frames"])
+        self.position, self.direction = state["position"], state["direction"]
+        self._shown = None  # the sky texture is written again at the next render
 
     @property
     def frame_index(self) -> int:
@@ -391,6 +427,23 @@ class DCSDistraction:
             self.camera.advance(camera_rng)
         if self.colour is not None:
             self.colour.advance(colour_rng)
+
+    def get_state(self) -> dict[str, Any]:
+        """Each distraction's generator and state."""
+        parts = {name: part.get_state() for name, part in self._parts().items() if part is not None}
+        return {"random": [rng.bit_generator.state for rng in self._rngs], **parts}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Continue from ``get_state``'s state, on a distraction made with the same arguments."""
+        self._rngs = [np.random.default_rng() for _ in state["random"]]
+        for rng, rng_state in zip(self._rngs, state["random"], strict=True):
+            rng.bit_generator.state = rng_state
+        for name, part in self._parts().items():
+            if part is not None:
+                part.set_state(state[name])
+
+    def _parts(self) -> dict[str, SkyVideo | CameraWalk | ColourWalk | None]:
+        return {"background": self.background, "camera": self.camera, "colour": self.colour}
 
     def render(self, renderer: CameraRenderer, agent_step: int) -> np.ndarray:
         if self.background is not None:

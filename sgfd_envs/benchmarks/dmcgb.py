@@ -107,6 +107,21 @@ class DMCGBDistraction:
     def control_step(self) -> None:
         pass
 
+    def get_state(self) -> dict[str, int | None]:
+        """The episode count since seeding and the episode's colour entry or clip."""
+        return {
+            "episodes_since_seed": self._episodes_since_seed,
+            "colour_index": self.colour_index,
+            "clip_index": self.clip_index,
+        }
+
+    def set_state(self, state: dict[str, int | None]) -> None:
+        """Continue from ``get_state``'s state, on a distraction made with the same arguments."""
+        self._episodes_since_seed = state["episodes_since_seed"]
+        self.colour_index, self.clip_index = state["colour_index"], state["clip_index"]
+        if self.colour_index is not None:
+            self._scene_colours.apply(self._colours[self.colour_index])
+
     def render(self, renderer: CameraRenderer, agent_step: int) -> np.ndarray:
         if self._scene_colours is not None:
             self._scene_colours.upload(renderer)

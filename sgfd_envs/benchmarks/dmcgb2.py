@@ -26,6 +26,7 @@ from __future__ import annotations
 import importlib
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import Any
 
 import cv2
 import mujoco
@@ -208,6 +209,30 @@ class DMCGB2Distraction:
 
     def control_step(self) -> None:
         pass
+
+    def get_state(self) -> dict[str, Any]:
+        """The pose order and start drawn at seeding, the episode count since, and the episode's pose, colour
+        entry and clip."""
+        return {
+            "order": self._order.copy(),
+            "start": self._start,
+            "episodes_since_seed": self._episodes_since_seed,
+            "camera_rotation": self.camera_rotation.copy(),
+            "pose_index": self.pose_index,
+            "colour_index": self.colour_index,
+            "clip_index": self.clip_index,
+        }
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Continue from ``get_state``'s state, on a distraction made with the same arguments."""
+        self._order = np.array(state["order"])
+        self._start, self._episodes_since_seed = state["start"], state["episodes_since_seed"]
+        self.camera_rotation = np.array(state["camera_rotation"])
+        self.pose_index, self.colour_index = state["pose_index"], state["colour_index"]
+        self.clip_index = state["clip_index"]
+        if self.colour_index is not None:
+            self._scene_colours.apply(self._colours[self.colour_index])
+        self._shown_frame = None  # the screen texture is written again at the next render
 
     def screen_position(self) -> np.ndarray | None:
         """Where the video screen is drawn now (None without a video): its compiled place, or for walker and
