@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from zoo import provenance
 from zoo.cli import main as zoo_main
 
 pytestmark = pytest.mark.ray
@@ -71,12 +72,16 @@ def test_a_study_trains_evaluates_and_writes_its_compact_results_next_to_its_spe
         assert {path.name for path in run.iterdir()} == {
             "config.yml",
             "args.yml",
+            "versions.txt",
             "diagnostics.csv",
             "final_evaluation.csv",
             "evaluations_train.npz",
             "evaluations_interpolation.npz",
             "evaluations_extrapolation.npz",
         }
+        # what trained it, as the run wrote it when it started
+        trained_by = (run / "versions.txt").read_text()
+        assert trained_by.startswith("=== from step 0, ") and provenance.source() in trained_by
     with (study / "runs" / "sgfd_sac" / "SGFD-MT-walker-walk-v0_1" / "diagnostics.csv").open() as handle:
         columns = next(csv.reader(handle))
     assert {"timesteps", "sgfd/classifier_accuracy", "train/critic_loss"} <= set(columns)

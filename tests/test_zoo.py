@@ -14,6 +14,7 @@ import torch as th
 import yaml
 
 import sgfd_envs
+from zoo import provenance
 from zoo.algos import SGFD_ALGOS
 from zoo.arguments import ZooError
 from zoo.cli import main as zoo_main
@@ -265,6 +266,11 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(algo, tmp_path):
     kept = sorted(path.name for path in run.glob("checkpoint_*_steps.zip"))
     expected = sorted(f"checkpoint_{n * every}_steps.zip" for n in (3, 4))
     assert kept == expected, "the two newest checkpoints are kept"
+    # What trained it, a block per start: the resumed steps may come from other code.
+    versions = RunFolder(run).versions_file.read_text()
+    starts = [line.split(",")[0] for line in versions.splitlines() if line.startswith("=== ")]
+    assert starts == ["=== from step 0", f"=== from step {newest.num_timesteps}"]
+    assert versions.count(provenance.source()) == 2 and versions.count("stable-baselines3==") == 2
 
 
 @pytest.mark.slow

@@ -8,6 +8,7 @@ import difflib
 import errno
 import inspect
 import sys
+import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -31,7 +32,7 @@ from sb3_sgfd.policies import MlpEncoder, PixelEncoder
 from sb3_sgfd.representation import REPRESENTATIONS
 from sb3_sgfd.validation import RefusedTransition
 from sgfd_envs.backgrounds import overlay_bank
-from zoo import training_state
+from zoo import provenance, training_state
 from zoo.algos import SGFD_ALGOS
 from zoo.arguments import TrainingStopped, ZooError, check_keywords, train_command
 from zoo.callbacks import (
@@ -365,6 +366,15 @@ class SGFDExperimentManager(ExperimentManager):
         self.create_callbacks()
         self._save_config(saved_hyperparams)
         return model, saved_hyperparams
+
+    def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
+        super()._save_config(saved_hyperparams)
+        # Appended, not replaced: a resumed run's later steps may come from other code.
+        versions = RunFolder(Path(self.save_path)).versions_file
+        start = 0 if self.checkpoint is None else self.checkpoint.num_timesteps
+        block = f"=== from step {start}, {time.strftime('%Y-%m-%d %H:%M:%S')}\n{provenance.versions()}"
+        earlier = versions.read_text() if versions.exists() else ""
+        atomic_write(versions, lambda tmp: Path(tmp).write_text(earlier + block))
 
     def _check_configuration(self) -> tuple[None, dict[str, Any]]:
         """The configuration read, checked and built into a model on the env with a tiny replay buffer: what

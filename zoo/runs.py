@@ -364,6 +364,11 @@ class _NamedRun:
         """Where its ``config.yml`` (and ``args.yml``) lie."""
         return self.path
 
+    @property
+    def versions_file(self) -> Path:
+        """What trained it (:mod:`zoo.provenance`), a block per start: ``versions.txt`` beside its config."""
+        return self.config_dir / "versions.txt"
+
     @functools.cached_property
     def config(self) -> dict[str, Any]:
         """The hyperparameters the run trained with ({} before the run wrote them, or when unreadable)."""
@@ -684,7 +689,7 @@ class RunRecord(_NamedRun):
         self.final_evaluation.unlink(missing_ok=True)
         for npz in sorted(run.path.glob("evaluations_*.npz")):
             atomic_write(self.path / npz.name, lambda tmp, npz=npz: shutil.copyfile(npz, tmp))
-        for name in ("config.yml", "args.yml"):
+        for name in ("config.yml", "args.yml", run.versions_file.name):
             if (run.config_dir / name).exists():
                 atomic_write(self.path / name, lambda tmp, name=name: shutil.copyfile(run.config_dir / name, tmp))
         atomic_write(self.diagnostics, lambda tmp: diagnostics(Path(tmp)))

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import platform
 import shlex
 import sys
 from importlib import metadata
@@ -36,7 +35,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from zoo import evaluate, sweep
+from zoo import evaluate, provenance, sweep
 from zoo.algos import SGFD_ALGOS, algo_sort_key, column_name
 from zoo.arguments import ZooError, check_at_least, checked_names
 from zoo.runs import RunFolder, RunRecord, env_name, find_records, find_runs
@@ -57,7 +56,6 @@ DIAGNOSTICS = (
     "train/actor_loss",
     "train/ent_coef",
 )
-PACKAGES = ("sb3-sgfd", "stable-baselines3", "rl-zoo3", "torch", "gymnasium", "dm-control", "mujoco", "ray", "rliable")
 
 
 def read_spec(path: Path) -> dict[str, Any]:
@@ -240,17 +238,15 @@ def _mean_std(values: list[float], form: str = "{:.2f}") -> str:
 
 
 def versions() -> str:
-    """Python, the platform and the versions of the packages that decide the numbers."""
-    import torch
-
-    lines = [f"python {platform.python_version()}", f"platform {platform.platform()}", f"cpu count {_cpus()}"]
-    lines.append(f"torch threads per run: 1 (sweep --cpus-per-run 1); torch {torch.__version__}")
-    for package in PACKAGES:
-        try:
-            lines.append(f"{package}=={metadata.version(package)}")
-        except metadata.PackageNotFoundError:
-            lines.append(f"{package}: not installed")
-    return "\n".join(lines) + "\n"
+    """What exported the tables (each run's own ``versions.txt`` says what trained it): the source and the
+    package versions, the CPUs, and rliable's version."""
+    try:
+        rliable = f"rliable=={metadata.version('rliable')}"
+    except metadata.PackageNotFoundError:
+        rliable = "rliable: not installed"
+    threads = "torch threads per run: 1 (sweep --cpus-per-run 1)"
+    header = "# what exported these tables; each record's versions.txt says what trained its run (from 2026-12-02 on)\n"
+    return header + provenance.versions() + f"cpu count {_cpus()}\n{threads}\n{rliable}\n"
 
 
 def _cpus() -> int:
