@@ -310,9 +310,14 @@ def test_ctrl_c_stops_each_running_run_at_a_checkpoint_that_the_same_command_res
     out_file = tmp_path / "out.txt"
     with out_file.open("w") as out:
         # A process group of its own, as a terminal's foreground job: the Ctrl-C reaches the sweep and Ray's
-        # own processes alike.
+        # own processes alike. Its SIGINT is a terminal's too: a test run started in the background (nohup, &)
+        # ignores SIGINT, and a Python started ignoring it never raises KeyboardInterrupt.
         sweep_process = subprocess.Popen(
-            [sys.executable, "-m", "zoo.cli", *argv], stdout=out, stderr=subprocess.STDOUT, start_new_session=True
+            [sys.executable, "-m", "zoo.cli", *argv],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
         )
         try:
             deadline, seen = time.monotonic() + 300, 0
