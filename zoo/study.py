@@ -245,7 +245,7 @@ def versions() -> str:
     except metadata.PackageNotFoundError:
         rliable = "rliable: not installed"
     threads = "torch threads per run: 1 (sweep --cpus-per-run 1)"
-    header = "# what exported these tables; each record's versions.txt says what trained its run (from 2026-12-02 on)\n"
+    header = "# what exported these tables; a record's versions.txt, where it has one, says what trained its run\n"
     return header + provenance.versions() + f"cpu count {_cpus()}\n{threads}\n{rliable}\n"
 
 

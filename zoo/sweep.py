@@ -444,10 +444,11 @@ def _stop_at_checkpoints(pending: dict[Any, Job], view: LiveView) -> None:
     ray.wait(list(pending), num_returns=len(pending))
     for job in pending.values():
         run = job.run
+        checkpoint = None if run.finished else run.checkpoint
         if run.finished:
             view.message(f"finished {job} ({job.run_dir})")
-        elif run.checkpoint is not None and run.checkpoint != before[job]:
-            view.message(f"stopped {job} at its checkpoint at {run.checkpoint.num_timesteps} steps ({job.run_dir})")
+        elif checkpoint is not None and checkpoint != before[job]:
+            view.message(f"stopped {job} at its checkpoint at {checkpoint.num_timesteps} steps ({job.run_dir})")
 
 
 def _start_ray(args: argparse.Namespace) -> None:
