@@ -73,6 +73,7 @@ def test_a_study_trains_evaluates_and_writes_its_compact_results_next_to_its_spe
             "config.yml",
             "args.yml",
             "versions.txt",
+            "source.txt",
             "diagnostics.csv",
             "final_evaluation.csv",
             "evaluations_train.npz",
@@ -187,6 +188,44 @@ def test_a_record_without_its_whole_final_evaluation_is_trained_again_and_a_whol
         ("sgfd_sac_no_saliency", 0), ("sgfd_sac", 1), ("sgfd_sac_no_saliency", 1),
         ("sgfd_sac", 2), ("sgfd_sac_no_saliency", 2),
     ]  # fmt: skip
+
+
+def write_log_run(logs: Path, algo: str, run_id: int, seed: int) -> Path:
+    """A log run folder with only what names its cell: rl-zoo3's args.yml."""
+    run = logs / algo / f"SGFD-MT-walker-walk-v0_{run_id}"
+    (run / "SGFD-MT-walker-walk-v0").mkdir(parents=True)
+    (run / "SGFD-MT-walker-walk-v0" / "args.yml").write_text(yaml.safe_dump({"seed": seed}))
+    return run
+
+
+def test_a_fresh_log_folders_run_never_overwrites_an_earlier_sessions_record_of_another_seed(tmp_path):
+    from zoo.arguments import ZooError
+    from zoo.runs import RunFolder, RunRecord, find_records
+    from zoo.study import record_of
+
+    study, runs = tmp_path / "study", tmp_path / "study" / "runs"
+    for seed in (0, 1):  # an earlier session's records (from before records named their run): _1 and _2
+        write_record(study, "sgfd_sac", seed, ("train", "interpolation", "extrapolation"))
+
+    def cells() -> dict:
+        return {(r.algo, r.env_id, r.seed): r for r in find_records(runs)}
+
+    # this session's log folder numbers its runs from 1 again: seed 3 is run _1, seed 4 run _2
+    seed3 = RunFolder(write_log_run(tmp_path / "logs", "sgfd_sac", 1, 3))
+    record = record_of(seed3, runs, cells())
+    assert record.path.name == "SGFD-MT-walker-walk-v0_3"
+    record.path.mkdir()
+    record.source_file.write_text(f"{seed3.path.resolve()}\n")
+    assert record_of(seed3, runs, cells()) == record  # exported again: the same record, even before it is whole
+    seed4 = RunFolder(write_log_run(tmp_path / "logs", "sgfd_sac", 2, 4))
+    assert record_of(seed4, runs, cells()).path.name == "SGFD-MT-walker-walk-v0_4"
+    # an old record of the same cell and the same name is this run's (what exports did before names were kept)
+    seed0 = RunFolder(write_log_run(tmp_path / "old-logs", "sgfd_sac", 1, 0))
+    assert record_of(seed0, runs, cells()) == RunRecord(runs / "sgfd_sac" / "SGFD-MT-walker-walk-v0_1")
+    # a second run of a recorded cell is refused, naming both
+    again = RunFolder(write_log_run(tmp_path / "other-logs", "sgfd_sac", 5, 1))
+    with pytest.raises(ZooError, match=r"v0_5 \(seed 1\) is already recorded as .*SGFD-MT-walker-walk-v0_2"):
+        record_of(again, runs, cells())
 
 
 def test_an_unreadable_final_evaluation_is_named(tmp_path):

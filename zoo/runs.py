@@ -640,6 +640,15 @@ class RunRecord(_NamedRun):
     def diagnostics(self) -> Path:
         return self.path / "diagnostics.csv"
 
+    @property
+    def source_file(self) -> Path:
+        return self.path / "source.txt"
+
+    @property
+    def source(self) -> Path | None:
+        """The log run this record was made from (None for a record written before records named it)."""
+        return Path(self.source_file.read_text().strip()) if self.source_file.exists() else None
+
     @functools.cached_property
     def final_rows(self) -> list[dict[str, Any]]:
         """The final model's evaluation, one row per split ([] when the record has none), as ``sgfd-zoo
@@ -687,6 +696,7 @@ class RunRecord(_NamedRun):
         """
         self.path.mkdir(parents=True, exist_ok=True)
         self.final_evaluation.unlink(missing_ok=True)
+        atomic_write(self.source_file, lambda tmp: Path(tmp).write_text(f"{run.path.resolve()}\n"))
         for npz in sorted(run.path.glob("evaluations_*.npz")):
             atomic_write(self.path / npz.name, lambda tmp, npz=npz: shutil.copyfile(npz, tmp))
         for name in ("config.yml", "args.yml", run.versions_file.name):

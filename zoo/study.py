@@ -98,15 +98,13 @@ def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[
     rows_by_run: dict[str, list[dict[str, Any]]] = {}
     for row in evaluate.read_results(folder / "results.csv") if (folder / "results.csv").exists() else []:
         rows_by_run.setdefault(row["run"], []).append(row)
-    recorded = {(r.algo, r.env_id, r.seed): r.path for r in find_records(out / "runs", spec["algos"], spec["envs"])}
+    recorded = {(r.algo, r.env_id, r.seed): r for r in find_records(out / "runs", spec["algos"], spec["envs"])}
     for run in find_runs(folder, spec["algos"], spec["envs"]):
         if str(run.path) not in rows_by_run:
             continue  # not evaluated: recorded by the next export
-        record = RunRecord(out / "runs" / run.algo / run.path.name)
-        other = recorded.get((run.algo, run.env_id, run.seed)) if run.seed is not None else None
-        if other is not None and other != record.path:
-            raise ZooError(f"{run.path} (seed {run.seed}) is already recorded as {other}: remove one of them")
+        record = record_of(run, out / "runs", recorded)
         record.write(run, rows_by_run[str(run.path)], lambda path, run=run: write_diagnostics(run, path))
+        recorded[(run.algo, run.env_id, run.seed)] = record
     records = study_records(spec, out)
     results = [{**row, "run": str(record.path.relative_to(out))} for record in records for row in record.final_rows]
     written = list(evaluate.write_results(results, out))
@@ -116,6 +114,32 @@ def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[
     (out / "command.txt").write_text(command + "\n")
     (out / "versions.txt").write_text(versions())
     return [*written, out / "diagnostics.md", out / "command.txt", out / "versions.txt"]
+
+
+def record_of(run: RunFolder, runs: Path, recorded: dict[tuple[str, str, int | None], RunRecord]) -> RunRecord:
+    """Where the finished log run ``run`` is recorded under the study's ``runs`` folder: the record made
+    from this run when there is one (an export again, or one cut short); else a record of its own, named as
+    the run unless an earlier record holds that name (a fresh log folder numbers its runs from 1 again): then
+    the next free id.
+
+    :param run: a finished run of the log folder
+    :param runs: the study's ``runs`` folder
+    :param recorded: the records by (algo, env id, seed)
+    """
+    cell = recorded.get((run.algo, run.env_id, run.seed)) if run.seed is not None else None
+    if cell is not None:
+        # a record from before records named their run: the folder name was its only link
+        if cell.source == run.path.resolve() or (cell.source is None and cell.path.name == run.path.name):
+            return cell
+        raise ZooError(f"{run.path} (seed {run.seed}) is already recorded as {cell.path}: remove one of them")
+    others = find_records(runs, [run.algo], [run.env_id])
+    for other in others:
+        if other.source == run.path.resolve():  # an export of this run that was cut short
+            return other
+    record = RunRecord(runs / run.algo / run.path.name)
+    if not record.path.exists():
+        return record
+    return RunRecord(runs / run.algo / f"{env_name(run.env_id)}_{max(other.run_id for other in others) + 1}")
 
 
 def study_records(spec: dict[str, Any], out: Path) -> list[RunRecord]:
