@@ -51,7 +51,7 @@ from sb3_sgfd.saliency import (
     saliency_map,
     train_classifier,
 )
-from sb3_sgfd.weighting_official import OfficialClassifier, solve_official_weights
+from sb3_sgfd.weighting_official import OfficialClassifier, OfficialWeighting, solve_official_weights
 from sb3_sgfd.weighting_paper import PaperWeighting
 from sgfd_analysis.correlation import collect_states, standardised_sample, state_names
 from sgfd_analysis.correlation import train_domain_classifier as correlation_classifier
@@ -413,9 +413,20 @@ def median_ms(fn: Callable[[], object], repeats: int = 50) -> float:
     return 1e3 * statistics.median(times)
 
 
+def product_multiply_adds(rows: int, channels: int, block: int, steps: int) -> int:
+    """Multiply-adds of a solve's matrix products: per step one covariance and one gradient, each rows x D^2,
+    for ``channels`` separate covariances of D = ``block`` columns."""
+    return steps * 2 * channels * rows * block**2
+
+
 def timing_table() -> None:
-    z = torch.tanh(torch.randn(N_BATCH, 50, generator=torch.Generator().manual_seed(0)))
-    classifier = DomainClassifier(50, N_DOMAINS)
+    d, m = 50, 5
+    # The paper reading: one (d m x d m) covariance of the batch per step; the official one: 2 m separate (d x d)
+    # covariances of the batch and its memory per epoch. Exact solvers cannot do less, so this ratio is a floor.
+    paper_macs = product_multiply_adds(N_BATCH, 1, d * m, PAPER_SOLVER["iters"])
+    official_macs = product_multiply_adds(2 * N_BATCH, 2 * m, d, OfficialWeighting.defaults["reweight_iters"])
+    z = torch.tanh(torch.randn(N_BATCH, d, generator=torch.Generator().manual_seed(0)))
+    classifier = DomainClassifier(d, N_DOMAINS)
     probs = feature_probabilities(classifier, z)
     generator = torch.Generator().manual_seed(0)
     memory = WeightMemory(0.9)
@@ -452,6 +463,11 @@ def timing_table() -> None:
         )
     torch.set_num_threads(default_threads)
     print_table(["call (CPU)", "threads", "median ms"], rows)
+    print(
+        f"\nmultiply-adds of the solves' matrix products: paper {paper_macs / 1e6:.0f}M, official "
+        f"{official_macs / 1e6:.0f}M ({official_macs / paper_macs:.2f}x, the least any exact official solve costs "
+        "at equal arithmetic speed)"
+    )
 
 
 def main() -> None:

@@ -26,17 +26,20 @@ def test_the_source_is_the_checkouts_commit_and_says_when_its_code_differs(tmp_p
     commit = git(checkout, "rev-parse", "HEAD")
     monkeypatch.setattr(provenance, "_ROOT", checkout.resolve())
     assert provenance.source() == f"source: git commit {commit}"
-    dirty = f"source: git commit {commit} with uncommitted changes in sb3_sgfd, sgfd_envs, zoo"
+    dirty = f"source: git commit {commit} with uncommitted changes in"
     # Files outside the code, and files git ignores, do not change what the code is; a change or a new file does.
     (checkout / "README.md").write_text("more notes\n")
     (checkout / ".gitignore").write_text("*.pyc\n")
     (checkout / "zoo" / "code.pyc").write_bytes(b"compiled")
     assert provenance.source() == f"source: git commit {commit}"
     (checkout / "zoo" / "scratch.py").write_text("y = 2\n")
-    assert provenance.source() == dirty
+    assert provenance.source() == f"{dirty} zoo"
     (checkout / "zoo" / "scratch.py").unlink()
     (checkout / "sgfd_envs" / "code.py").write_text("x = 2\n")
-    assert provenance.source() == dirty
+    assert provenance.source() == f"{dirty} sgfd_envs"
+    (checkout / "sb3_sgfd" / "new").mkdir()
+    (checkout / "sb3_sgfd" / "new" / "module.py").write_text("z = 3\n")
+    assert provenance.source() == f"{dirty} sb3_sgfd, sgfd_envs"
     # The package installed into a folder inside some checkout (a virtual environment there) is not its code.
     site = checkout / ".venv" / "site-packages"
     site.mkdir(parents=True)

@@ -23,7 +23,7 @@ def _git(*args: str) -> str | None:
 
 
 def source() -> str:
-    """The commit the package's code is at, and whether its folders differ from it (a changed file, or a new one
+    """The commit the package's code is at, and which of its folders differ from it (a changed file, or a new one
     git does not ignore); or that it is not a checkout (an installed wheel, say: its version line says which)."""
     top = _git("rev-parse", "--show-toplevel")
     # A wheel installed in a virtual environment inside some checkout is not that checkout's code.
@@ -34,7 +34,10 @@ def source() -> str:
     if changed is None:
         dirty = " (whether its folders differ from it is unknown)"
     else:
-        dirty = f" with uncommitted changes in {', '.join(SOURCE_FOLDERS)}" if changed else ""
+        # porcelain lines are "XY path" (the first one stripped here), the path from the checkout's root, quoted
+        # when it has odd characters
+        folders = sorted({line.split(maxsplit=1)[1].strip('"').split("/")[0] for line in changed.splitlines()})
+        dirty = f" with uncommitted changes in {', '.join(folders)}" if folders else ""
     return f"source: git commit {commit}{dirty}"
 
 

@@ -213,10 +213,12 @@ def diagnostics_figures(runs: list[RunFolder | RunRecord], out: Path) -> list[Pa
 def diagnostics_summary(runs: list[RunFolder | RunRecord]) -> str:
     """Markdown, per env and algorithm (mean ± std over seeds): when the classifier first reached its threshold,
     the weights' ESS and range once it had, the feature most often the most salient (and in what share of all
-    the seeds' logs), and the evaluation returns at the end of training."""
+    the seeds' logs), and the returns of the last evaluation during training (``--eval-episodes`` episodes, not
+    the final evaluation of ``results.md``)."""
     lines = [
         "| env | algo | seeds | classifier ready at step | ESS / n | smallest weight | largest weight | "
-        "top-saliency feature (share of logs) | final train return | final extrapolation return |",
+        "top-saliency feature (share of logs) | train return, last eval in training | "
+        "extrapolation return, last eval in training |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for env_id in sorted({run.env_id for run in runs}):
