@@ -104,7 +104,7 @@ def learning_rate_of(algo: str, env_id: str, seconds: float, smoke: bool) -> str
     import torch as th
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from zoo.experiment import SGFDExperimentManager, register_algorithms
+    from sgfd_zoo.experiment import SGFDExperimentManager, register_algorithms
 
     class StopAfter(BaseCallback):
         """Counts updates from the first one, and stops ``seconds`` later."""

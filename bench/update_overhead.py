@@ -10,7 +10,7 @@ Two policies:
 
 With ``agents``, the paper's other agents on the same pixels and CnnPolicy encoder (AMBS with its
 ratio-scaled one): DBC, AMBS, SGFD on AMBS (the paper's agent, steady phase), TED and SGQN, each with its
-objective and augmentation as in zoo/hyperparams, next to SAC; each twice: as it trains (the actor's Q on
+objective and augmentation as in sgfd_zoo/hyperparams, next to SAC; each twice: as it trains (the actor's Q on
 the critic's features of the step) and "before", with ``actor_reuses_features=False`` (the batch encoded
 again for the actor's Q, as SB3 does and as this package did before).
 
@@ -87,7 +87,7 @@ AGENT_NAMES = ("DBC", "AMBS", "SGFD on AMBS", "TED", "SGQN")
 
 
 def agents(env_factory: Callable[[], VecEnv], **common) -> dict[str, BaseAlgorithm]:
-    """The paper's other agents, with their objectives and augmentation (zoo/hyperparams), actor every step, each
+    """The paper's other agents, with their objectives and augmentation (sgfd_zoo/hyperparams), actor every step, each
     as it trains and "before" (the actor's Q on the batch encoded again, ``actor_reuses_features=False``)."""
     ambs = dict(augmentation_views=2, encoder_tau=0.05, max_grad_norm=40.0, representation="ambs")
     sgqn = dict(quantile=0.98, overlay_images=overlay_bank(IMAGE_SIZE[0], IMAGE_SIZE[0]))

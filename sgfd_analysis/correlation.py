@@ -33,7 +33,7 @@ from matplotlib.patches import Rectangle
 import sgfd_envs
 from sb3_sgfd.reweighting import effective_sample_size, learn_sample_weights, weighted_pearson
 from sb3_sgfd.saliency import DomainClassifier, classifier_accuracy, feature_probabilities, train_classifier
-from zoo.arguments import ZooError
+from sgfd_zoo.arguments import ZooError
 
 WEIGHTINGS = ("raw", "global", "sgfd")
 TITLES = {"raw": "(a) raw data", "global": "(b) global decorrelation", "sgfd": "(c) SGFD (saliency-guided)"}

@@ -10,9 +10,9 @@ import yaml
 
 import sgfd_envs
 from sgfd_envs.registry import task_entry
-from zoo.arguments import check_env_id
-from zoo.experiment import SGFDExperimentManager, hyperparams_file, register_algorithms
-from zoo.runs import RunFolder
+from sgfd_zoo.arguments import check_env_id
+from sgfd_zoo.experiment import SGFDExperimentManager, hyperparams_file, register_algorithms
+from sgfd_zoo.runs import RunFolder
 
 BENCHMARK_IDS = [env_id for ids in sgfd_envs.BENCHMARK_IDS.values() for env_id in ids]
 AGENTS = ("ambs", "dbc", "sac", "sgfd_sac", "sgfd_sac_moderate", "sgfd_sac_official", "sgfd_sac_plain", "sgqn", "ted")
@@ -63,7 +63,7 @@ def test_paper_scale_models_build_on_the_benchmark_ids(agent, env_id, tmp_path):
 
 
 def zoo(*args):
-    result = subprocess.run([sys.executable, "-m", "zoo.cli", *args], capture_output=True, text=True, timeout=900)
+    result = subprocess.run([sys.executable, "-m", "sgfd_zoo.cli", *args], capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, f"sgfd-zoo {' '.join(args)}:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
     return result
 

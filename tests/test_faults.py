@@ -42,9 +42,9 @@ import stable_baselines3.common.off_policy_algorithm
 from stable_baselines3.common.save_util import load_from_pkl
 
 import sgfd_envs.dmc
-from zoo import sweep, training
-from zoo.cli import main as zoo_main
-from zoo.runs import FINISHED_MARKER, RunFolder, read_index
+from sgfd_zoo import sweep, training
+from sgfd_zoo.cli import main as zoo_main
+from sgfd_zoo.runs import FINISHED_MARKER, RunFolder, read_index
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 NAME = "SGFD-MT-walker-walk-v0"
@@ -311,7 +311,7 @@ class Training:
         folder.mkdir(parents=True, exist_ok=True)
         self.out, self.err = folder / "stdout.txt", folder / "stderr.txt"
         with self.out.open("w") as out, self.err.open("w") as err:
-            self.process = subprocess.Popen([sys.executable, "-m", "zoo.cli", *args], stdout=out, stderr=err)
+            self.process = subprocess.Popen([sys.executable, "-m", "sgfd_zoo.cli", *args], stdout=out, stderr=err)
 
     def wait_until(self, condition: Callable[[], bool], timeout: float = 300, poll: float = 0.005) -> None:
         deadline = time.monotonic() + timeout

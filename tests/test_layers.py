@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("sb3_sgfd", "sgfd_envs", "zoo", "sgfd_analysis")
+PACKAGES = ("sb3_sgfd", "sgfd_envs", "sgfd_zoo", "sgfd_analysis")
 
 
 def all_imports(node: ast.AST) -> set[str]:
@@ -47,7 +47,7 @@ def test_no_import_cycle_between_modules():
     graph = module_imports()
     # a package's __init__ importing its own submodules is the package, not a cycle
     edges = {name: {dep for dep in deps if not name.startswith(f"{dep}.")} for name, deps in graph.items()}
-    assert len(graph) > 40 and "zoo.runs" in edges["zoo.evaluate"]
+    assert len(graph) > 40 and "sgfd_zoo.runs" in edges["sgfd_zoo.evaluate"]
     cycles = []
 
     def visit(name: str, path: list[str]) -> None:
@@ -65,7 +65,7 @@ def test_no_import_cycle_between_modules():
 
 
 def test_reporting_imports_neither_torch_nor_rl_zoo3():
-    code = "import sys, zoo.cli, zoo.plot, zoo.runs, zoo.statistics, zoo.arguments; "
+    code = "import sys, sgfd_zoo.cli, sgfd_zoo.plot, sgfd_zoo.runs, sgfd_zoo.statistics, sgfd_zoo.arguments; "
     code += "print(sorted(m for m in ('torch', 'rl_zoo3', 'optuna', 'ray', 'stable_baselines3') if m in sys.modules))"
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
     assert loaded.stdout.strip() == "[]"

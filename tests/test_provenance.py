@@ -6,7 +6,7 @@ import subprocess
 from importlib import metadata
 from pathlib import Path
 
-from zoo import provenance
+from sgfd_zoo import provenance
 
 
 def git(folder: Path, *args: str) -> str:
@@ -30,11 +30,11 @@ def test_the_source_is_the_checkouts_commit_and_says_when_its_code_differs(tmp_p
     # Files outside the code, and files git ignores, do not change what the code is; a change or a new file does.
     (checkout / "README.md").write_text("more notes\n")
     (checkout / ".gitignore").write_text("*.pyc\n")
-    (checkout / "zoo" / "code.pyc").write_bytes(b"compiled")
+    (checkout / "sgfd_zoo" / "code.pyc").write_bytes(b"compiled")
     assert provenance.source() == f"source: git commit {commit}"
-    (checkout / "zoo" / "scratch.py").write_text("y = 2\n")
-    assert provenance.source() == f"{dirty} zoo"
-    (checkout / "zoo" / "scratch.py").unlink()
+    (checkout / "sgfd_zoo" / "scratch.py").write_text("y = 2\n")
+    assert provenance.source() == f"{dirty} sgfd_zoo"
+    (checkout / "sgfd_zoo" / "scratch.py").unlink()
     (checkout / "sgfd_envs" / "code.py").write_text("x = 2\n")
     assert provenance.source() == f"{dirty} sgfd_envs"
     (checkout / "sb3_sgfd" / "new").mkdir()

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from zoo import provenance
-from zoo.cli import main as zoo_main
+from sgfd_zoo import provenance
+from sgfd_zoo.cli import main as zoo_main
 
 pytestmark = pytest.mark.ray
 
@@ -131,8 +131,8 @@ def write_logged_run(folder: Path, algo: str, config: dict[str, object], logged:
 
 
 def test_the_diagnostics_read_each_runs_own_threshold_and_name_the_most_salient_feature(tmp_path):
-    from zoo.runs import find_runs
-    from zoo.study import diagnostics_summary
+    from sgfd_zoo.runs import find_runs
+    from sgfd_zoo.study import diagnostics_summary
 
     logged = {"sgfd/classifier_accuracy": [0.25, 0.85, 0.95], "sgfd/top_saliency_feature": [24, 24, 3]}
     write_logged_run(tmp_path, "sgfd_sac", {"classifier_start": 0}, logged)  # the paper reading: 0.9
@@ -165,9 +165,9 @@ def write_record(study: Path, algo: str, seed: int, splits: tuple[str, ...]) -> 
 
 
 def test_a_record_without_its_whole_final_evaluation_is_trained_again_and_a_whole_one_is_not(tmp_path):
-    from zoo import sweep
-    from zoo.runs import RunRecord
-    from zoo.study import read_spec, study_records
+    from sgfd_zoo import sweep
+    from sgfd_zoo.runs import RunRecord
+    from sgfd_zoo.study import read_spec, study_records
 
     spec = read_spec(write_spec(tmp_path / "study", seeds=[0, 1, 2]))
     whole = write_record(tmp_path / "study", "sgfd_sac", 0, ("train", "interpolation", "extrapolation"))
@@ -199,9 +199,9 @@ def write_log_run(logs: Path, algo: str, run_id: int, seed: int) -> Path:
 
 
 def test_a_fresh_log_folders_run_never_overwrites_an_earlier_sessions_record_of_another_seed(tmp_path):
-    from zoo.arguments import ZooError
-    from zoo.runs import RunFolder, RunRecord, find_records
-    from zoo.study import record_of
+    from sgfd_zoo.arguments import ZooError
+    from sgfd_zoo.runs import RunFolder, RunRecord, find_records
+    from sgfd_zoo.study import record_of
 
     study, runs = tmp_path / "study", tmp_path / "study" / "runs"
     for seed in (0, 1):  # an earlier session's records (from before records named their run): _1 and _2
@@ -229,7 +229,7 @@ def test_a_fresh_log_folders_run_never_overwrites_an_earlier_sessions_record_of_
 
 
 def test_an_unreadable_final_evaluation_is_named(tmp_path):
-    from zoo.runs import RunRecord, UnreadableFile
+    from sgfd_zoo.runs import RunRecord, UnreadableFile
 
     record = RunRecord(write_record(tmp_path, "sac", 0, ("train",)))
     record.final_evaluation.write_text("algo,env,split,seed\nsac,x,train,zero\n")

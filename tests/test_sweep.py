@@ -22,8 +22,8 @@ import pytest
 import ray
 import yaml
 
-from zoo import cli, sweep
-from zoo.runs import Checkpoint, RunFolder, atomic_write, find_runs, mark_finished, read_index, write_index
+from sgfd_zoo import cli, sweep
+from sgfd_zoo.runs import Checkpoint, RunFolder, atomic_write, find_runs, mark_finished, read_index, write_index
 
 pytestmark = pytest.mark.ray
 
@@ -282,7 +282,7 @@ def test_sweep_on_an_existing_cluster_skips_finished_runs_and_resumes_a_crashed_
     argv = ["sweep", "--algos", "sgfd_sac", "--envs", ENV, "--seeds", "0", "1", "-f", str(folder)]
     argv += ["--address", ray_cluster, "--no-evaluate", *TINY, "-n", "900"]  # the resumed run goes on to 900
     result = subprocess.run(
-        [sys.executable, "-m", "zoo.cli", *argv],
+        [sys.executable, "-m", "sgfd_zoo.cli", *argv],
         capture_output=True,
         text=True,
         timeout=600,
@@ -313,7 +313,7 @@ def test_ctrl_c_stops_each_running_run_at_a_checkpoint_that_the_same_command_res
         # own processes alike. Its SIGINT is a terminal's too: a test run started in the background (nohup, &)
         # ignores SIGINT, and a Python started ignoring it never raises KeyboardInterrupt.
         sweep_process = subprocess.Popen(
-            [sys.executable, "-m", "zoo.cli", *argv],
+            [sys.executable, "-m", "sgfd_zoo.cli", *argv],
             stdout=out,
             stderr=subprocess.STDOUT,
             start_new_session=True,

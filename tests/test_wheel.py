@@ -36,9 +36,9 @@ def test_the_wheel_installed_in_a_fresh_environment_runs_the_quick_job(tmp_path:
     )
     (wheel,) = tmp_path.glob("sb3_sgfd-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
-    shipped = {str(path.relative_to(REPO)) for path in (REPO / "zoo" / "hyperparams").rglob("*.yml")}
+    shipped = {str(path.relative_to(REPO)) for path in (REPO / "sgfd_zoo" / "hyperparams").rglob("*.yml")}
     assert shipped and shipped <= names, sorted(shipped - names)
-    assert {"sgfd_analysis/correlation.py", "zoo/cli.py", "sb3_sgfd/encoder_sac.py"} <= names
+    assert {"sgfd_analysis/correlation.py", "sgfd_zoo/cli.py", "sb3_sgfd/encoder_sac.py"} <= names
 
     # A fresh environment with the wheel; its dependencies are this environment's packages, behind its own
     # site-packages (a plain path in a .pth file: the editable install's finder there is not run).
@@ -59,7 +59,7 @@ def test_the_wheel_installed_in_a_fresh_environment_runs_the_quick_job(tmp_path:
     work = tmp_path / "elsewhere"
     work.mkdir()
     where = subprocess.run(
-        [str(python), "-c", "import zoo, sb3_sgfd, sgfd_analysis; print(zoo.__file__, sgfd_analysis.__file__)"],
+        [str(python), "-c", "import sgfd_zoo, sb3_sgfd, sgfd_analysis; print(sgfd_zoo.__file__, sgfd_analysis.__file__)"],  # noqa: E501
         check=True, capture_output=True, text=True, cwd=work,
     ).stdout  # fmt: skip
     assert all(path.startswith(str(venv)) for path in where.split()), where

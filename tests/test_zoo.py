@@ -14,13 +14,13 @@ import torch as th
 import yaml
 
 import sgfd_envs
-from zoo import provenance
-from zoo.algos import SGFD_ALGOS
-from zoo.arguments import ZooError
-from zoo.cli import main as zoo_main
-from zoo.evaluate import read_results, render_tables
-from zoo.experiment import SGFDExperimentManager, hyperparams_file, register_algorithms
-from zoo.runs import RunFolder, read_index
+from sgfd_zoo import provenance
+from sgfd_zoo.algos import SGFD_ALGOS
+from sgfd_zoo.arguments import ZooError
+from sgfd_zoo.cli import main as zoo_main
+from sgfd_zoo.evaluate import read_results, render_tables
+from sgfd_zoo.experiment import SGFDExperimentManager, hyperparams_file, register_algorithms
+from sgfd_zoo.runs import RunFolder, read_index
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 RUN_NAME = "SGFD-MT-walker-walk-v0"
@@ -31,7 +31,7 @@ TINY_PARAMS = ["-params", "learning_starts:200", "classifier_start:300", "policy
 
 def zoo(*args: str, check: bool = True, timeout: float = 600) -> subprocess.CompletedProcess:
     result = subprocess.run(
-        [sys.executable, "-m", "zoo.cli", *args], capture_output=True, text=True, timeout=timeout, check=False
+        [sys.executable, "-m", "sgfd_zoo.cli", *args], capture_output=True, text=True, timeout=timeout, check=False
     )
     if check and result.returncode != 0:
         raise AssertionError(f"sgfd-zoo {' '.join(args)} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}")
@@ -227,7 +227,7 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(algo, tmp_path):
     train_args = ["train", "--algo", algo, "--env", ENV_ID, "-f", str(logs), "--seed", "0", *TINY[:1]]
     train_args += ["--num-threads", "1", "--no-progress", "--verbose", "0", *params, "--eval-episodes", "1"]
     process = subprocess.Popen(
-        [sys.executable, "-m", "zoo.cli", *train_args, "-n", "100000", *save],
+        [sys.executable, "-m", "sgfd_zoo.cli", *train_args, "-n", "100000", *save],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
@@ -294,7 +294,7 @@ def test_a_run_killed_and_resumed_ends_where_an_unbroken_run_ends_bit_for_bit(al
     zoo(*common, "-f", str(tmp_path / "straight"), "-n", "800")
     broken = tmp_path / "broken"
     process = subprocess.Popen(
-        [sys.executable, "-m", "zoo.cli", *common, "-f", str(broken), "-n", "100000"],
+        [sys.executable, "-m", "sgfd_zoo.cli", *common, "-f", str(broken), "-n", "100000"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )

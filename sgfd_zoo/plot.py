@@ -10,9 +10,9 @@ import numpy as np
 from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global figure state
 
 import sgfd_envs
-from zoo.algos import algo_sort_key, column_name
-from zoo.arguments import ZooError
-from zoo.runs import env_name, find_runs
+from sgfd_zoo.algos import algo_sort_key, column_name
+from sgfd_zoo.arguments import ZooError
+from sgfd_zoo.runs import env_name, find_runs
 
 Curve = tuple[np.ndarray, np.ndarray]
 

@@ -22,8 +22,8 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import CSVOutputFormat
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from zoo import training_state
-from zoo.runs import (
+from sgfd_zoo import training_state
+from sgfd_zoo.runs import (
     Checkpoint,
     FileWriteError,
     StoredFile,
@@ -201,7 +201,7 @@ def _restore_vec_normalize(model: BaseAlgorithm, path: str) -> None:
 
 # What a checkpoint saves, in the order it is written. The model comes last: a checkpoint whose model file
 # exists is complete, which is how one is recognised without its index. Resuming restores every part the
-# checkpoint has; the training state (generators, envs) when the resumed training starts (zoo.experiment).
+# checkpoint has; the training state (generators, envs) when the resumed training starts (sgfd_zoo.experiment).
 CHECKPOINT_PARTS: tuple[CheckpointPart, ...] = (
     CheckpointPart(
         "training_state",
@@ -264,7 +264,7 @@ class ResumableCheckpointCallback(BaseCallback):
     """
     Every ``save_freq`` calls, and when ``stop`` is set (then training stops), save a checkpoint between two env
     steps (at ``on_rollout_start``: with ``train_freq`` k, the first at or after the due call): the parts of
-    ``parts`` that the model has, each written whole (:func:`zoo.runs.atomic_write`: fsync'd, checked, renamed),
+    ``parts`` that the model has, each written whole (:func:`sgfd_zoo.runs.atomic_write`: fsync'd, checked, renamed),
     then ``checkpoint.json`` listing them with their sizes and sha256. The two newest checkpoints are kept:
     before a new one is written the older is deleted, and the newer stays until the new one is complete, so a
     crash, a kill or a full disk at any moment leaves the previous checkpoint usable (peak: two checkpoints

@@ -17,9 +17,9 @@ class ZooAlgo:
 
     :param class_path: The SB3 algorithm, ``module:Class``
     :param column: Its column name in the paper's tables
-    :param hyperparams: The yaml file stem under zoo/hyperparams it reads
+    :param hyperparams: The yaml file stem under sgfd_zoo/hyperparams it reads
     :param overrides: Hyperparameters set on top of that file (how the ablations differ from SGFD)
-    :param quick_hyperparams: The stem under zoo/hyperparams/quick, where it differs from ``hyperparams``
+    :param quick_hyperparams: The stem under sgfd_zoo/hyperparams/quick, where it differs from ``hyperparams``
     """
 
     class_path: str

@@ -47,8 +47,8 @@ import numpy as np
 import yaml
 
 import sgfd_envs
-from zoo.algos import SGFD_ALGOS
-from zoo.arguments import ZooError, check_env_id
+from sgfd_zoo.algos import SGFD_ALGOS
+from sgfd_zoo.arguments import ZooError, check_env_id
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -366,7 +366,7 @@ class _NamedRun:
 
     @property
     def versions_file(self) -> Path:
-        """What trained it (:mod:`zoo.provenance`), a block per start: ``versions.txt`` beside its config."""
+        """What trained it (:mod:`sgfd_zoo.provenance`), a block per start: ``versions.txt`` beside its config."""
         return self.config_dir / "versions.txt"
 
     @functools.cached_property

@@ -11,20 +11,23 @@ from collections.abc import Sequence
 
 # command -> (module:function, one-line description)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "train": ("zoo.training:train", "train an agent (rl-zoo3's flags, plus --quick, --resume, --no-progress)"),
+    "train": ("sgfd_zoo.training:train", "train an agent (rl-zoo3's flags, plus --quick, --resume, --no-progress)"),
     "optimize": (
-        "zoo.training:optimize",
+        "sgfd_zoo.training:optimize",
         "tune hyperparameters with Optuna (rl-zoo3's flags, --storage)",
     ),
-    "enjoy": ("zoo.training:enjoy", "watch or roll out a trained agent (rl-zoo3's flags)"),
+    "enjoy": ("sgfd_zoo.training:enjoy", "watch or roll out a trained agent (rl-zoo3's flags)"),
     "evaluate": (
-        "zoo.evaluate:main",
+        "sgfd_zoo.evaluate:main",
         "every trained model of a log folder on every split: tables, statistics",
     ),
-    "plot": ("zoo.plot:main", "learning curves per split and algorithm from a log folder"),
-    "quick": ("zoo.quick:main", "the main job: SGFD and SAC briefly, on several seeds; tables with intervals"),
-    "sweep": ("zoo.sweep:main", "algos x envs x seeds as Ray tasks (here or on a cluster), resumable; then evaluate"),
-    "study": ("zoo.study:main", "a study from a spec file: its sweep, statistics and figures into studies/<name>"),
+    "plot": ("sgfd_zoo.plot:main", "learning curves per split and algorithm from a log folder"),
+    "quick": ("sgfd_zoo.quick:main", "the main job: SGFD and SAC briefly, on several seeds; tables with intervals"),
+    "sweep": (
+        "sgfd_zoo.sweep:main",
+        "algos x envs x seeds as Ray tasks (here or on a cluster), resumable; then evaluate",
+    ),
+    "study": ("sgfd_zoo.study:main", "a study from a spec file: its sweep, statistics and figures into studies/<name>"),
     "correlation-study": (
         "sgfd_analysis.correlation:main",
         "|correlation| of the changed feature with the others: raw, global and SGFD weights",
@@ -73,7 +76,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def run(command: str, argv: Sequence[str]) -> int:
     """Run ``command``'s function on ``argv``; a ZooError is printed as one line and gives its exit code."""
-    from zoo.arguments import ZooError  # here, not at the top: a Ctrl-C while it imports sgfd_envs is caught
+    from sgfd_zoo.arguments import ZooError  # here, not at the top: a Ctrl-C while it imports sgfd_envs is caught
 
     module, _, function = COMMANDS[command][0].partition(":")
     try:

@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from sgfd_envs.benchmarks import dcs, dmcgb2
-from zoo.algos import algo_sort_key, column_name
-from zoo.runs import RunFolder, RunRecord
+from sgfd_zoo.algos import algo_sort_key, column_name
+from sgfd_zoo.runs import RunFolder, RunRecord
 
 MAX_RETURN = 1000.0
 SCORE_FIELDS = ["algo", "env", "seed", "split", "return"]

@@ -28,11 +28,11 @@ from pathlib import Path
 from typing import Any
 
 import sgfd_envs  # before anything imports dm_control: it picks MuJoCo's headless GL backend
-from zoo import evaluate, training
-from zoo.algos import SGFD_ALGOS
-from zoo.arguments import TrainingStopped, ZooError, checked_names, flag_value, has_flag
-from zoo.progress import LiveView, ProgressBoard, progress_block, returns_text
-from zoo.runs import NoUsableCheckpoint, RunFolder, find_runs, runs_by_id
+from sgfd_zoo import evaluate, training
+from sgfd_zoo.algos import SGFD_ALGOS
+from sgfd_zoo.arguments import TrainingStopped, ZooError, checked_names, flag_value, has_flag
+from sgfd_zoo.progress import LiveView, ProgressBoard, progress_block, returns_text
+from sgfd_zoo.runs import NoUsableCheckpoint, RunFolder, find_runs, runs_by_id
 
 # Train flags the sweep sets per run itself, and what to use instead.
 SWEEP_OWNED_FLAGS = {

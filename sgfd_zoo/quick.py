@@ -1,6 +1,6 @@
 """
 ``sgfd-zoo quick``: the whole pipeline in about ten minutes on a 2-core CPU. A sweep (``sgfd-zoo sweep``) of
-SGFD_SAC and the SAC (Domain Randomisation) baseline with the quick configuration (zoo/hyperparams/quick:
+SGFD_SAC and the SAC (Domain Randomisation) baseline with the quick configuration (sgfd_zoo/hyperparams/quick:
 state observations with the morphology parameter, small networks, 20k steps) on two seeds, one run per CPU
 core at a time, with live progress; then evaluation on the training domains and the unseen ones: the
 paper-style tables, and the aggregate statistics with 95% confidence intervals over the seeds; and the
@@ -13,9 +13,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from zoo import plot, sweep
-from zoo.algos import SGFD_ALGOS
-from zoo.arguments import check_at_least, check_env_id
+from sgfd_zoo import plot, sweep
+from sgfd_zoo.algos import SGFD_ALGOS
+from sgfd_zoo.arguments import check_at_least, check_env_id
 
 DEFAULT_STEPS = 20_000
 

@@ -32,10 +32,10 @@ from sb3_sgfd.policies import MlpEncoder, PixelEncoder
 from sb3_sgfd.representation import REPRESENTATIONS
 from sb3_sgfd.validation import RefusedTransition
 from sgfd_envs.backgrounds import overlay_bank
-from zoo import provenance, training_state
-from zoo.algos import SGFD_ALGOS
-from zoo.arguments import TrainingStopped, ZooError, check_keywords, train_command
-from zoo.callbacks import (
+from sgfd_zoo import provenance, training_state
+from sgfd_zoo.algos import SGFD_ALGOS
+from sgfd_zoo.arguments import TrainingStopped, ZooError, check_keywords, train_command
+from sgfd_zoo.callbacks import (
     CHECKPOINT_PARTS,
     CSVLogCallback,
     MultiSplitEvalCallback,
@@ -44,7 +44,7 @@ from zoo.callbacks import (
     StopRequest,
     interrupts_deferred,
 )
-from zoo.runs import (
+from sgfd_zoo.runs import (
     CHECKPOINT_INDEX,
     KEPT_CHECKPOINTS,
     Checkpoint,
@@ -61,7 +61,7 @@ from zoo.runs import (
     write_failure,
     write_index,
 )
-from zoo.training_state import RestoreTrainingState
+from sgfd_zoo.training_state import RestoreTrainingState
 
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 # Keys rl-zoo3 consumes itself before the rest goes to the algorithm's constructor.
@@ -149,12 +149,12 @@ class SGFDExperimentManager(ExperimentManager):
     """
     rl-zoo3's ExperimentManager with SGFD's conventions:
 
-    - hyperparameters from ``zoo/hyperparams/<algo>.yml`` unless ``-conf`` names another file;
+    - hyperparameters from ``sgfd_zoo/hyperparams/<algo>.yml`` unless ``-conf`` names another file;
     - the training VecEnv has one sub-env per training domain (``n_envs`` defaults to their number);
     - evaluation envs get the same env kwargs as training (rl-zoo3 drops yaml ``env_kwargs`` there),
       and evaluation covers every split: training domains and the unseen ones;
     - checkpoints (model + replay buffer) every ``save_freq`` steps, each file written whole and checked
-      (:class:`~zoo.callbacks.ResumableCheckpointCallback`); ``resume=True`` continues the newest run of this
+      (:class:`~sgfd_zoo.callbacks.ResumableCheckpointCallback`); ``resume=True`` continues the newest run of this
       algo and env from its newest checkpoint that verifies, the one before when the newest does not;
     - Ctrl-C stops training at a checkpoint and a full disk stops it cleanly: a :class:`TrainingStopped`
       says how to continue, and the run is not finished; the final model is followed by ``finished.json``;
@@ -165,7 +165,7 @@ class SGFDExperimentManager(ExperimentManager):
 
     Takes rl-zoo3's arguments, plus:
 
-    :param quick: Use the quick configuration (``zoo/hyperparams/quick``) when no ``-conf`` is given
+    :param quick: Use the quick configuration (``sgfd_zoo/hyperparams/quick``) when no ``-conf`` is given
     :param resume: Continue the newest run from its last checkpoint instead of starting a new one
     :param progress: Show a progress bar; None: when stdout is a terminal
     :param run_id: Write to (and resume) the run folder ``<EnvName>_<run_id>``; None: rl-zoo3's newest id + 1

@@ -1,5 +1,5 @@
 """``sgfd-zoo evaluate``: every trained model of a log folder on every split, as the paper's tables and as
-aggregate statistics with confidence intervals (:mod:`zoo.statistics`); runs on a benchmark's ids (DMC-GB,
+aggregate statistics with confidence intervals (:mod:`sgfd_zoo.statistics`); runs on a benchmark's ids (DMC-GB,
 DMC-GB2, the Distracting Control Suite) also in that benchmark's layout, tasks x modes, with the IQM of each mode."""
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ from pytablewriter import MarkdownTableWriter
 
 import sgfd_envs
 from sgfd_envs.registry import BENCHMARK_KINDS, benchmark_of
-from zoo.algos import algo_sort_key, column_name
-from zoo.arguments import ZooError, check_at_least, check_env_id
-from zoo.runs import RunFolder, find_runs
-from zoo.statistics import MAX_RETURN, aggregate, read_csv, score_rows, split_sort_key, write_csv, write_statistics
+from sgfd_zoo.algos import algo_sort_key, column_name
+from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id
+from sgfd_zoo.runs import RunFolder, find_runs
+from sgfd_zoo.statistics import MAX_RETURN, aggregate, read_csv, score_rows, split_sort_key, write_csv, write_statistics
 
 RESULT_FIELDS = ["algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes", "run"]
 
@@ -32,7 +32,7 @@ def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[st
     """
     from stable_baselines3.common.evaluation import evaluate_policy
 
-    from zoo.experiment import wrap_like_training
+    from sgfd_zoo.experiment import wrap_like_training
 
     key = {"n_episodes": n_episodes, "seed": seed, "model_mtime_ns": run.model_path.stat().st_mtime_ns}
     if run.final_evaluation.exists():
@@ -112,7 +112,7 @@ def render_benchmark_tables(results: list[dict[str, Any]], reps: int = 2000, see
     DMC-GB's layout for the runs on a benchmark's ids: per benchmark and algorithm a table with its tasks as rows
     and its modes as columns (``train`` first), ``mean ± std`` over seeds, and a last row with the IQM of each
     mode's normalised scores over the algorithm's runs and the benchmark's tasks, with its 95% stratified-bootstrap
-    CI (rliable, :func:`zoo.statistics.aggregate`). Empty when no run is on a benchmark id.
+    CI (rliable, :func:`sgfd_zoo.statistics.aggregate`). Empty when no run is on a benchmark id.
 
     :param results: rows of ``sgfd-zoo evaluate``
     :param reps: bootstrap replications

@@ -10,7 +10,7 @@ from importlib import metadata
 from pathlib import Path
 
 PACKAGES = ("sb3-sgfd", "stable-baselines3", "rl-zoo3", "torch", "numpy", "gymnasium", "dm-control", "mujoco", "ray")
-SOURCE_FOLDERS = ("sb3_sgfd", "sgfd_envs", "zoo")
+SOURCE_FOLDERS = ("sb3_sgfd", "sgfd_envs", "sgfd_zoo")
 _ROOT = Path(__file__).resolve().parents[1]
 
 

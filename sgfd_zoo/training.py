@@ -16,8 +16,8 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from zoo.algos import SGFD_ALGOS
-from zoo.arguments import ZooError, check_env_id, flag_value, has_flag
+from sgfd_zoo.algos import SGFD_ALGOS
+from sgfd_zoo.arguments import ZooError, check_env_id, flag_value, has_flag
 
 
 def train(
@@ -35,12 +35,12 @@ def train(
     """
     import rl_zoo3.train
 
-    from zoo.experiment import SGFDExperimentManager, register_algorithms
+    from sgfd_zoo.experiment import SGFDExperimentManager, register_algorithms
 
     parser = argparse.ArgumentParser(prog=f"sgfd-zoo {'optimize' if optimize else 'train'}", add_help=False)
     parser.add_argument("--algo", default="sgfd_sac", choices=sorted(SGFD_ALGOS), help="algorithm key")
     parser.add_argument("--env", help="a registered id (sgfd_envs.ENV_IDS), e.g. SGFD/MT-walker-walk-v0")
-    parser.add_argument("--quick", action="store_true", help="the quick configuration (zoo/hyperparams/quick)")
+    parser.add_argument("--quick", action="store_true", help="the quick configuration (sgfd_zoo/hyperparams/quick)")
     parser.add_argument("--resume", action="store_true", help="continue the newest run from its last checkpoint")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
@@ -75,7 +75,7 @@ def train(
 
 
 def optimize(argv: Sequence[str]) -> int:
-    """rl-zoo3's Optuna search with the SGFD sampler (see zoo.experiment.sample_sgfd_sac_params)."""
+    """rl-zoo3's Optuna search with the SGFD sampler (see sgfd_zoo.experiment.sample_sgfd_sac_params)."""
     return train(argv, optimize=True)
 
 
@@ -84,8 +84,8 @@ def enjoy(argv: Sequence[str]) -> int:
     watches the newest finished run (rl-zoo3's newest folder may be a run still training or stopped)."""
     import rl_zoo3.enjoy
 
-    from zoo.experiment import register_algorithms
-    from zoo.runs import select_run
+    from sgfd_zoo.experiment import register_algorithms
+    from sgfd_zoo.runs import select_run
 
     register_algorithms()
     argv = list(argv)
