@@ -33,7 +33,7 @@ from sb3_sgfd.representation import REPRESENTATIONS
 from sb3_sgfd.validation import RefusedTransition
 from sgfd_envs.backgrounds import overlay_bank
 from sgfd_zoo import provenance, training_state
-from sgfd_zoo.algos import SGFD_ALGOS
+from sgfd_zoo.algos import SGFD_ALGOS, classifier_start_warning, is_sgfd
 from sgfd_zoo.arguments import TrainingStopped, ZooError, check_keywords, train_command
 from sgfd_zoo.callbacks import (
     CHECKPOINT_PARTS,
@@ -175,6 +175,8 @@ class SGFDExperimentManager(ExperimentManager):
     :param command: The ``sgfd-zoo train`` flags of this run, to print the command that continues it
     :param default_save_freq: No ``--save-freq`` was given: checkpoint every :func:`default_checkpoint_interval`
         steps of this run
+    :param classifier_start: ``classifier_start`` of an SGFD algorithm (``--classifier-start``); the others have
+        no classifier and ignore it, so that a sweep may mix them
     """
 
     def __init__(
@@ -188,6 +190,7 @@ class SGFDExperimentManager(ExperimentManager):
         check_only: bool = False,
         command: Sequence[str] | None = None,
         default_save_freq: bool = False,
+        classifier_start: int | None = None,
         **kwargs,
     ):
         algo = args[1] if len(args) > 1 else kwargs["algo"]
@@ -207,6 +210,7 @@ class SGFDExperimentManager(ExperimentManager):
         self.resume = resume
         self.command = None if command is None else list(command)
         self.default_save_freq = default_save_freq
+        self.classifier_start = classifier_start
         self.stop = StopRequest()
         self.checkpoint: Checkpoint | None = None
         self.checkpointer: ResumableCheckpointCallback | None = None
@@ -229,6 +233,10 @@ class SGFDExperimentManager(ExperimentManager):
         if self.algo in SGFD_ALGOS:
             # The ablations are the SGFD entries with one part switched off; the saved config shows it.
             overrides = {**SGFD_ALGOS[self.algo].overrides, **(self.custom_hyperparams or {})}
+            if self.classifier_start is not None and is_sgfd(self.algo):
+                if "classifier_start" in (self.custom_hyperparams or {}):
+                    raise ZooError("--classifier-start and --hyperparams classifier_start:... both set; give one")
+                overrides["classifier_start"] = self.classifier_start
             hyperparams.update(overrides)
             saved.update(overrides)
         return hyperparams, saved
@@ -248,6 +256,9 @@ class SGFDExperimentManager(ExperimentManager):
             with env_kwargs_checked(self.env_kwargs):
                 self.n_envs = sgfd_envs.n_domains(self.env_name.gym_id, "train", **self.env_kwargs)
         check_algo_kwargs(self.algo, processed)
+        warning = classifier_start_warning(self.algo, processed, self.n_timesteps)
+        if warning is not None:
+            print(f"warning: {warning}", file=sys.stderr)
         check_policy_fits(self.algo, processed, observes_pixels(self.env_kwargs))
         check_nested_kwargs(self.algo, processed)
         self._add_overlay_images(processed)
