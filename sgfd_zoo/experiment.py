@@ -60,6 +60,7 @@ from sgfd_zoo.runs import (
     runs_by_id,
     write_failure,
     write_index,
+    write_json,
 )
 from sgfd_zoo.training_state import RestoreTrainingState
 
@@ -322,7 +323,10 @@ class SGFDExperimentManager(ExperimentManager):
         if self.progress_reporter is not None:
             evaluation = next((c for c in self.callbacks if isinstance(c, MultiSplitEvalCallback)), None)
             latest = None if evaluation is None else evaluation.latest_returns
-            self.callbacks.append(ProgressCallback(self.progress_reporter, self.n_timesteps, latest))
+            progress = ProgressCallback(self.progress_reporter, self.n_timesteps, latest)
+            if evaluation is not None:
+                evaluation.on_split = progress.evaluating
+            self.callbacks.append(progress)
         if self.training_state is not None:  # last: after every other callback has started
             self.callbacks.append(RestoreTrainingState(self.training_state))
 
@@ -380,6 +384,8 @@ class SGFDExperimentManager(ExperimentManager):
 
     def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
         super()._save_config(saved_hyperparams)
+        if self.command is not None:  # what `sgfd-zoo evaluate` prints to continue an unfinished run
+            write_json(RunFolder(Path(self.save_path)).command_file, self.command)
         # Appended, not replaced: a resumed run's later steps may come from other code.
         versions = RunFolder(Path(self.save_path)).versions_file
         start = 0 if self.checkpoint is None else self.checkpoint.num_timesteps
