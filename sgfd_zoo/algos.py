@@ -102,9 +102,9 @@ def classifier_start_warning(algo: str, hyperparams: dict[str, Any], n_timesteps
         return None
     start = hyperparams.get("classifier_start")
     if start is None:
-        import inspect
+        from sb3_sgfd.sgfd.settings import SGFDSettings  # here: reading this table imports no agent
 
-        start = inspect.signature(SGFD_ALGOS[algo].algo_class).parameters["classifier_start"].default
+        start = SGFDSettings().classifier_start
     if start < n_timesteps:
         return None
     # The official reading weights from the first update with whatever the classifier scores; the paper's
