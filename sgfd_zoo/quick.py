@@ -15,7 +15,6 @@ import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
-from sgfd_zoo import plot, sweep
 from sgfd_zoo.algos import SGFD_ALGOS, is_sgfd
 from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id
 
@@ -82,9 +81,16 @@ def check_run_lengths(folder: Path, algos: Sequence[str], env_id: str, n_timeste
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="sgfd-zoo quick", description=__doc__)
+    parser = argparse.ArgumentParser(prog="sgfd-zoo quick", description=__doc__.replace("``", "`"))
     parser.add_argument("--env", default="SGFD/MT-walker-walk-v0", help="a registered id (sgfd_envs.ENV_IDS)")
-    parser.add_argument("--algos", nargs="+", default=["sgfd_sac", "sac"], choices=sorted(SGFD_ALGOS))
+    parser.add_argument(
+        "--algos",
+        nargs="+",
+        default=["sgfd_sac", "sac"],
+        choices=sorted(SGFD_ALGOS),
+        metavar="ALGO",
+        help=f"algorithm keys (default: sgfd_sac sac): {', '.join(SGFD_ALGOS)}",
+    )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1], help="seeds: the spread of the results")
     parser.add_argument(
         "-f", "--folder", type=Path, help="log folder (default: logs/quick, with --short logs/quick-short)"
@@ -134,6 +140,8 @@ def main(argv: list[str]) -> int:
     if classifier_start is not None:
         train_args += ["--classifier-start", str(classifier_start)]
         print(f"quick: {n_timesteps} steps per run; SGFD's classifier starts at step {classifier_start}")
+    from sgfd_zoo import plot, sweep  # here: --help and a bad flag answer without loading the sweep
+
     status = sweep.main([*sweep_args, *train_args])
     if status == 0:
         plot.main(["-f", str(folder)])
