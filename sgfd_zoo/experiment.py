@@ -257,12 +257,13 @@ class SGFDExperimentManager(ExperimentManager):
             with env_kwargs_checked(self.env_kwargs):
                 self.n_envs = sgfd_envs.n_domains(self.env_name.gym_id, "train", **self.env_kwargs)
         check_algo_kwargs(self.algo, processed)
-        warning = classifier_start_warning(self.algo, processed, self.n_timesteps)
-        if warning is not None:
-            print(f"warning: {warning}", file=sys.stderr)
         check_policy_fits(self.algo, processed, observes_pixels(self.env_kwargs))
         check_nested_kwargs(self.algo, processed)
         self._add_overlay_images(processed)
+        # After the checks: a configuration that is refused gets its one line only.
+        warning = classifier_start_warning(self.algo, processed, self.n_timesteps)
+        if warning is not None:
+            print(f"warning: {warning}", file=sys.stderr)
         return processed, env_wrapper, callbacks, vec_env_wrapper
 
     def _add_overlay_images(self, hyperparams: dict[str, Any]) -> None:
