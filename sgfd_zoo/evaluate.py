@@ -27,7 +27,7 @@ RESULT_FIELDS = ["algo", "env", "split", "seed", "mean_reward", "std_reward", "n
 # How a table marks a split played on a stand-in, and the note under it.
 STAND_IN_MARK = " (stand-in)"
 STAND_IN_NOTE = (
-    "Marked (stand-in): played on sgfd_envs' procedural stand-ins of the benchmark's data (no data_dir / "
+    "\nMarked (stand-in): played on sgfd_envs' procedural stand-ins of the benchmark's data (no data_dir / "
     "background_dir given), not the benchmark's numbers.\n"
 )
 

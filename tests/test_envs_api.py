@@ -349,3 +349,13 @@ def test_observe_parameter_gives_each_training_domain_its_own_value_in_a_vec_env
         assert np.all(np.diff(obs[:, -1]) > 0) and np.all(np.abs(obs[:, -1]) <= 1)
     finally:
         venv.close()
+
+
+def test_make_domain_vec_env_without_stable_baselines3_says_how_to_install_it(monkeypatch):
+    # An environments-only install has no SB3: None in sys.modules makes its import fail as a missing one does.
+    monkeypatch.setitem(sys.modules, "stable_baselines3.common", None)
+    monkeypatch.setitem(sys.modules, "stable_baselines3.common.vec_env", None)
+    with pytest.raises(
+        ModuleNotFoundError, match=r"make_domain_vec_env needs stable-baselines3 .*: pip install sb3-sgfd"
+    ):
+        sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", obs_type="state")
