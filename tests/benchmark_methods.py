@@ -27,8 +27,9 @@ def disagreement(ours: np.ndarray, theirs: np.ndarray, levels: int) -> float:
 
 
 def copy_state(physics, source) -> None:
-    """``source``'s simulator state and per-episode model fields on ``physics``, positions recomputed."""
-    for name in TASK_MODEL_FIELDS:
+    """``source``'s simulator state and per-episode model fields on ``physics`` (the task's, and the site colours a
+    task may hide, as finger-spin its target), positions recomputed."""
+    for name in (*TASK_MODEL_FIELDS, "site_rgba"):
         getattr(physics.model, name)[:] = getattr(source.model, name)
     physics.set_state(source.get_state())
     physics.forward()
