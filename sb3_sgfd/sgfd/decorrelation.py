@@ -146,7 +146,7 @@ class WeightMemory(TensorStateModule):
     def state_tensors(self) -> dict[str, Tensor]:
         if self.features is None or self.logits is None:
             return {}
-        return {"features": self.features, "logits": self.logits, "updates": torch.tensor(self.updates)}
+        return {"features": self.features, "logits": self.logits, "updates": torch.tensor(float(self.updates))}
 
     def load_state_tensors(self, tensors: dict[str, Tensor]) -> None:
         self.features, self.logits = tensors.get("features"), tensors.get("logits")

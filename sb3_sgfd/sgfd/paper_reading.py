@@ -147,7 +147,7 @@ class PaperWeighting(SampleWeighting):
             yield fresh_features(batch_size, True)
 
     def state_tensors(self) -> dict[str, Tensor]:
-        return {"ready": torch.tensor(self.ready)}
+        return {"ready": torch.tensor(float(self.ready))}
 
     def load_state_tensors(self, tensors: dict[str, Tensor]) -> None:
         self.ready = bool(tensors["ready"])
