@@ -11,6 +11,7 @@ Pure torch, no Stable-Baselines3 import. Read top to bottom next to the paper:
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -135,6 +136,7 @@ class WeightMemory(nn.Module):
         if not self.remembers(features):
             self.features, self.logits, self.updates = features.clone(), logits.clone(), 0
         else:
+            assert self.features is not None and self.logits is not None  # remembers() says so
             # A running mean first, so that the start does not linger.
             keep = min(self.momentum, self.updates / (self.updates + 1))
             self.features = keep * self.features + (1 - keep) * features
@@ -144,10 +146,10 @@ class WeightMemory(nn.Module):
     def get_extra_state(self) -> dict[str, object]:
         return {"momentum": self.momentum, "features": self.features, "logits": self.logits, "updates": self.updates}
 
-    def set_extra_state(self, state: dict[str, object]) -> None:
-        self.momentum = float(state["momentum"])  # type: ignore[arg-type]
-        self.features, self.logits = state["features"], state["logits"]  # type: ignore[assignment]
-        self.updates = int(state["updates"])  # type: ignore[arg-type]
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        self.momentum = float(state["momentum"])
+        self.features, self.logits = state["features"], state["logits"]
+        self.updates = int(state["updates"])
 
     def _apply(self, fn, recurse=True):  # type: ignore[no-untyped-def]
         # .to(device) moves the remembered tensors, which are not parameters or buffers.

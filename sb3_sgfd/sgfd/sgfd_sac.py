@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, cast
 
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
@@ -17,10 +17,10 @@ from sb3_sgfd.common.encoder_sac import EncoderSAC
 from sb3_sgfd.sgfd.official_reading import OfficialWeighting
 from sb3_sgfd.sgfd.paper_reading import PaperWeighting
 from sb3_sgfd.sgfd.settings import SGFDSettings, setting_names
-from sb3_sgfd.sgfd.weighting import SampleWeighting, Step
+from sb3_sgfd.sgfd.weighting import Step, WeightingFactory
 
 #: The weighting of each reading (``SGFDSettings.reading``): the paper's text, and what the authors' code computes.
-WEIGHTINGS: dict[str, type[SampleWeighting]] = {"paper": PaperWeighting, "official": OfficialWeighting}
+WEIGHTINGS: dict[str, WeightingFactory] = {"paper": PaperWeighting, "official": OfficialWeighting}
 
 _SINGLE_DOMAIN_WARNING = (
     "SGFD_SAC sees a single domain, so there is nothing to decorrelate; it trains as plain SAC. Give it "
@@ -289,7 +289,7 @@ class SGFD_SAC(EncoderSAC):
         its domain labels: the classifier's extra batches."""
         batch = self.replay_buffer.sample(n_samples, env=self._vec_normalize_env)  # type: ignore[union-attr]
         observations = self.augment(batch.observations)[0] if augmented else batch.observations
-        return self.encode(observations), self._checked_domains(batch.domains)
+        return self.encode(observations), self._checked_domains(cast(DomainReplayBufferSamples, batch).domains)
 
     def _domain_count(self) -> int:
         return self.n_domains if self.n_domains is not None else super()._domain_count()

@@ -17,10 +17,13 @@ beyond the one a classifier round needs to decide whether to train.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 import torch
 from torch import Tensor, nn
+
+if TYPE_CHECKING:
+    from sb3_sgfd.sgfd.settings import SGFDSettings
 
 #: (number of samples, augmented) -> (features (n, d), domain labels (n,)) of a fresh replay batch.
 FreshFeatures = Callable[[int, bool], tuple[Tensor, Tensor]]
@@ -65,6 +68,8 @@ class SampleWeighting(nn.Module):
     ready: bool = True
     classifier: nn.Module
     classifier_optimizer: torch.optim.Optimizer
+    #: Draws the random Fourier features (a checkpoint saves its state with the model's other generators).
+    rff_generator: torch.Generator
 
     def __init__(self, n_features: int, n_domains: int) -> None:
         super().__init__()
@@ -92,6 +97,14 @@ class SampleWeighting(nn.Module):
         :return: weights (n,) with mean 1, and the decorrelation loss at uniform weights and at the weights
         """
         raise NotImplementedError
+
+
+class WeightingFactory(Protocol):
+    """How ``SGFD_SAC`` builds a reading's weighting: the constructor every reading's class has."""
+
+    def __call__(
+        self, n_features: int, n_domains: int, settings: SGFDSettings, seed: int, device: torch.device | str = ...
+    ) -> SampleWeighting: ...
 
 
 def weight_figures(weights: Tensor, loss_before: Tensor, loss_after: Tensor, probs: Tensor | None) -> dict[str, Tensor]:
