@@ -248,7 +248,7 @@ class OfficialWeighting(SampleWeighting):
         self.memory = None if settings.reweight_memory is None else WeightMemory(settings.reweight_memory)
         self.rff_generator = torch.Generator(device=device)
 
-    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:  # type: ignore[override]
+    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:
         with torch.no_grad():
             accuracy = _accuracy(self.classifier(z).argmax(dim=1), domains)
         classifier_round = (

@@ -76,7 +76,7 @@ class PaperWeighting(SampleWeighting):
     def active(self, num_timesteps: int) -> bool:
         return num_timesteps >= self.settings.classifier_start
 
-    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:  # type: ignore[override]
+    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:
         # Once ready, one pass of the classifier scores the batch and gives p(Z_i); on a step where the
         # classifier then also trains, the weights use that p (Algorithm 1 takes it after the classifier's step).
         probs, accuracy = None, None

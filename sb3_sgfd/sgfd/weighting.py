@@ -79,7 +79,7 @@ class SampleWeighting(nn.Module):
         """Whether the weighting does anything yet (before that, SGFD_SAC is SAC)."""
         return True
 
-    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:  # type: ignore[override]
+    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:
         """The weights of one batch, and the classifier's work of this step.
 
         :param z: the critic's (detached) encoder features of the batch, (n, d)
