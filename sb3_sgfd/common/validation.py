@@ -170,12 +170,17 @@ def _optional_positive(name: str, value: Any) -> None:
         check_positive(**{name: value})
 
 
+def _optional_rate(name: str, value: Any) -> None:
+    if value is not None:
+        check_interval(name, value, 0.0, 1.0, low_open=True)
+
+
 #: The arguments EncoderSAC adds to SAC's, and their checks
 ENCODER_SAC_ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
     "actor_update_interval": lambda name, value: check_positive_int(**{name: value}),
     "augmentation_views": _augmentation_views,
     "augmentation_pad": lambda name, value: check_non_negative_int(**{name: value}),
-    "encoder_tau": lambda name, value: value is None or check_interval(name, value, 0.0, 1.0, low_open=True),
+    "encoder_tau": _optional_rate,
     "max_grad_norm": _optional_positive,
     "ent_coef_lr": _optional_positive,
     "ent_coef_beta": lambda name, value: check_interval(name, value, 0.0, 1.0, high_open=True),
