@@ -28,9 +28,9 @@ from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecTranspose
 
 import sgfd_envs
 from sb3_sgfd import SGFD_SAC
-from sb3_sgfd.policies import MlpEncoder, PixelEncoder
-from sb3_sgfd.representation import REPRESENTATIONS
-from sb3_sgfd.validation import RefusedTransition
+from sb3_sgfd.common.policies import MlpEncoder, PixelEncoder
+from sb3_sgfd.common.representation import REPRESENTATIONS
+from sb3_sgfd.common.validation import RefusedTransition
 from sgfd_envs.backgrounds import overlay_bank
 from sgfd_zoo import provenance, training_state
 from sgfd_zoo.algos import SGFD_ALGOS
