@@ -146,8 +146,11 @@ class PaperWeighting(SampleWeighting):
         for _ in range(self.settings.classifier_iters - 1):
             yield fresh_features(batch_size, True)
 
-    def get_extra_state(self) -> dict[str, Any]:
-        return {"ready": self.ready}
+    def state_tensors(self) -> dict[str, Tensor]:
+        return {"ready": torch.tensor(self.ready)}
 
-    def set_extra_state(self, state: dict[str, Any]) -> None:
+    def load_state_tensors(self, tensors: dict[str, Tensor]) -> None:
+        self.ready = bool(tensors["ready"])
+
+    def load_legacy_state(self, state: dict[str, Any]) -> None:
         self.ready = bool(state["ready"])

@@ -17,10 +17,12 @@ beyond the one a classifier round needs to decide whether to train.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import torch
 from torch import Tensor, nn
+
+from sb3_sgfd.common.tensor_state import TensorStateModule
 
 #: (number of samples, augmented) -> (features (n, d), domain labels (n,)) of a fresh replay batch.
 FreshFeatures = Callable[[int, bool], tuple[Tensor, Tensor]]
@@ -52,7 +54,7 @@ class Weights(NamedTuple):
     figures: dict[str, Tensor]
 
 
-class SampleWeighting(nn.Module):
+class SampleWeighting(TensorStateModule):
     """The interface of SGFD's readings (see the module docstring). Subclasses take the settings
     (:class:`sb3_sgfd.sgfd.settings.SGFDSettings`), build their classifier and optimiser in ``__init__``, and
     implement ``forward`` and ``solve``.
@@ -73,6 +75,16 @@ class SampleWeighting(nn.Module):
     def active(self, num_timesteps: int) -> bool:
         """Whether the weighting does anything yet (before that, SGFD_SAC is SAC)."""
         return True
+
+    def state_tensors(self) -> dict[str, Tensor]:
+        """The reading's own state beyond its classifier and memory (none unless a reading keeps one)."""
+        return {}
+
+    def load_state_tensors(self, tensors: dict[str, Tensor]) -> None:
+        """Take back :meth:`state_tensors`."""
+
+    def load_legacy_state(self, state: dict[str, Any]) -> None:
+        """Take back a version 0.1.0 reading's extra state (none unless a reading kept one)."""
 
     def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:  # type: ignore[override]
         """The weights of one batch, and the classifier's work of this step.
