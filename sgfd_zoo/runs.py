@@ -621,6 +621,8 @@ def select_run(folder: Path, env_id: str, algo: str, run_id: int | None = None) 
 # -- a study's records of finished runs -----------------------------------------------------------------
 
 FINAL_EVALUATION_FIELDS = ("algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes")
+# Kept when present: whether the split played on a built-in stand-in of a benchmark's data (older records lack it).
+OPTIONAL_EVALUATION_FIELDS = ("stand_in",)
 
 
 @dataclass(frozen=True)
@@ -660,7 +662,11 @@ class RunRecord(_NamedRun):
         types = {"seed": int, "mean_reward": float, "std_reward": float, "n_episodes": int}
         try:
             return [
-                {**{key: types.get(key, str)(row[key]) for key in FINAL_EVALUATION_FIELDS}, "run": str(self.path)}
+                {
+                    **{key: types.get(key, str)(row[key]) for key in FINAL_EVALUATION_FIELDS},
+                    **{key: row[key] for key in OPTIONAL_EVALUATION_FIELDS if row.get(key)},
+                    "run": str(self.path),
+                }
                 for row in rows
             ]
         except (KeyError, TypeError, ValueError) as error:
@@ -706,7 +712,9 @@ class RunRecord(_NamedRun):
 
         def write_rows(tmp: str) -> None:
             with open(tmp, "w", newline="") as handle:
-                writer = csv.DictWriter(handle, FINAL_EVALUATION_FIELDS, extrasaction="ignore")
+                writer = csv.DictWriter(
+                    handle, FINAL_EVALUATION_FIELDS + OPTIONAL_EVALUATION_FIELDS, extrasaction="ignore"
+                )
                 writer.writeheader()
                 writer.writerows(final_rows)
 

@@ -22,7 +22,7 @@ OVERLAYS = np.random.default_rng(0).integers(0, 256, size=(4, 24, 24, 3), dtype=
 
 def pixel_env():
     """4 training domains, 24x24 pixels, 2 stacked frames (6 channels), channel first."""
-    return VecTransposeImage(VecFrameStack(sgfd_envs.make_domain_vec_env(ENV_ID, image_size=24), 2))
+    return VecTransposeImage(VecFrameStack(sgfd_envs.make_domain_vec_env(ENV_ID, image_size=24, render="fast"), 2))
 
 
 def state_env():

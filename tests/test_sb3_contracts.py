@@ -31,7 +31,7 @@ def pendulum(n_envs: int):
 
 def pixels(n_envs: int):
     """Plain pixel envs: a background id's first domain in every sub-env, so no env gives n_domains."""
-    make = [lambda: gym.make("SGFD/walker-walk-v0", image_size=24) for _ in range(n_envs)]
+    make = [lambda: gym.make("SGFD/walker-walk-v0", image_size=24, render="fast") for _ in range(n_envs)]
     return VecTransposeImage(VecFrameStack(DummyVecEnv(make), 2))
 
 
