@@ -43,7 +43,7 @@ def make_env(env_id: str, split: str, seed: int, **env_kwargs) -> VecEnv:
     :param env_id: a ``DMCGB/<task>-v0`` id
     :param split: ``"train"`` or a test mode
     :param seed: seed of the environment
-    :param env_kwargs: passed to the environment (``data_dir=``)
+    :param env_kwargs: passed to the environment (``data_dir=``, ``render=``)
     """
     env = sgfd_envs.make_domain_vec_env(env_id, split=split, seed=seed, **env_kwargs)
     return VecTransposeImage(VecFrameStack(env, FRAME_STACK))
@@ -61,6 +61,13 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
     parser.add_argument("--batch-size", type=int, default=128)
     parser.add_argument("--buffer-size", type=int, default=100_000, help="transitions kept (%(default)s)")
     parser.add_argument("--data-dir", default=None, help="DMC-GB's src/env/data (default: the built-in stand-ins)")
+    parser.add_argument(
+        "--render",
+        choices=("benchmark", "fast"),
+        default="benchmark",
+        help="benchmark: DMC-GB's pictures (shadows, reflections, multisampling); fast: none of them, several times "
+        "faster on a CPU, not the benchmark's pixels",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--save", default=None, help="save the model to this path (.zip)")
     parser.add_argument("--verbose", type=int, default=1, help="1: SB3's table every 4 episodes, 0: quiet")
@@ -71,7 +78,9 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
     for split in args.eval_splits:
         if split not in allowed:
             parser.error(f"--eval-splits: {split!r} is not a test mode of {args.env}; expected one of {allowed}")
-    env_kwargs = {} if args.data_dir is None else dict(data_dir=args.data_dir)
+    env_kwargs: dict = dict(render=args.render)
+    if args.data_dir is not None:
+        env_kwargs["data_dir"] = args.data_dir
 
     algo_class, algo_kwargs = ALGOS[args.algo]
     model = algo_class(

@@ -48,7 +48,10 @@ def test_mt_state_names_a_split_the_env_does_not_have(capsys):
 def test_dmcgb_pixels_trains_on_train_and_evaluates_on_test_modes(capsys):
     example = load("dmcgb_pixels")
     returns = example.main(
-        ["--steps", "120", "--batch-size", "8", "--eval-episodes", "1", "--eval-splits", "color_hard", "video_easy"]
+        [
+            *("--steps", "120", "--batch-size", "8", "--eval-episodes", "1", "--render", "fast"),
+            *("--eval-splits", "color_hard", "video_easy"),
+        ]
     )
     assert list(returns) == ["train", "color_hard", "video_easy"]
     for mean, _ in returns.values():
