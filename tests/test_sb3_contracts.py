@@ -88,13 +88,14 @@ def test_get_and_set_parameters_round_trip_with_tensors_only(name):
 
 
 def randomised(state: dict[str, th.Tensor]) -> dict[str, th.Tensor]:
-    """Every floating-point tensor of a state dict replaced by random values (counts and flags kept); keys of one
+    """Every floating-point tensor of a state dict replaced by random values (the flag and count kept); keys of one
     shared tensor (the encoder the actor and critic share) get the same values."""
     drawn: dict[int, th.Tensor] = {}
-    for value in state.values():
-        if value.is_floating_point():
+    counts = ("ready", "updates")  # the weighting's flag and its memory's count, as floats: kept as they are
+    for key, value in state.items():
+        if value.is_floating_point() and not key.endswith(counts):
             drawn.setdefault(value.data_ptr(), th.rand_like(value))
-    return {key: drawn[value.data_ptr()] if value.is_floating_point() else value for key, value in state.items()}
+    return {key: drawn.get(value.data_ptr(), value) for key, value in state.items()}
 
 
 def test_the_weighting_state_survives_the_round_trip():
@@ -191,3 +192,14 @@ def test_agents_that_read_images_or_states_refuse_dict_observations_in_one_line(
     with pytest.raises(ValueError, match="reads image or flat observations, not Dict ones") as error:
         algo("MultiInputPolicy", make_vec_env(DictEnv, n_envs=1), augmentation_views=0, **kwargs, **TINY)
     assert "\n" not in str(error.value)
+
+
+def test_sgfd_counts_the_domains_of_a_subprocess_vec_env_of_plain_envs():
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    env = make_vec_env("Pendulum-v1", n_envs=2, seed=0, vec_env_cls=SubprocVecEnv)
+    try:
+        model = SGFD_SAC("MlpPolicy", env, classifier_start=40, policy_kwargs=SMALL_NET, **TINY).learn(60)
+        assert model.n_domains == 2 and set(model.replay_buffer.stored_domains().tolist()) == {0, 1}
+    finally:
+        env.close()

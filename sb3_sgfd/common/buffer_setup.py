@@ -80,11 +80,10 @@ class DomainBufferMixin:
 
     def _env_domain_count(self) -> int:
         """The envs' own number of domain labels (see :meth:`_domain_count`)."""
-        try:
-            counts = self.env.get_attr("n_domains")
-        except AttributeError:
+        # has_attr first: a SubprocVecEnv's worker dies on a missing attribute instead of raising it here
+        if not self.env.has_attr("n_domains"):
             return int(self.env.num_envs)
-        return max(int(count) for count in counts)
+        return max(int(count) for count in self.env.get_attr("n_domains"))
 
     def _adopt_env_domains(self) -> None:
         """Let the replay buffer take every label of the envs attached now (it refuses a label outside

@@ -20,7 +20,7 @@ from __future__ import annotations
 import warnings
 from collections import defaultdict
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 
 import numpy as np
 import torch as th
@@ -195,7 +195,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
             super()._setup_model()
         if self.ent_coef_optimizer is not None and (self.ent_coef_lr is not None or self.ent_coef_beta != 0.9):
             lr = self.lr_schedule(1) if self.ent_coef_lr is None else self.ent_coef_lr
-            self.ent_coef_optimizer = th.optim.Adam([self.log_ent_coef], lr=lr, betas=(self.ent_coef_beta, 0.999))
+            self.ent_coef_optimizer = th.optim.Adam([self.log_ent_coef], lr=lr, betas=(self.ent_coef_beta, 0.999))  # type: ignore[arg-type]  # not None with the optimizer
         scaled = not self.policy.normalize_images
         if self.augmentation_views and not is_image_space(self.observation_space, normalized_image=scaled):
             raise ValueError(
@@ -238,7 +238,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
     def _target_pairs(self) -> tuple[list[tuple[th.Tensor, th.Tensor]], list[tuple[th.Tensor, th.Tensor]]]:
         """(online, target) parameters of the critic's encoder and of its heads, for the soft updates."""
         targets = dict(self.critic_target.named_parameters())
-        encoder, heads = [], []
+        encoder, heads = [], []  # type: list[tuple[th.Tensor, th.Tensor]], list[tuple[th.Tensor, th.Tensor]]
         for name, param in self.critic.named_parameters():
             (encoder if name.startswith("features_extractor.") else heads).append((param, targets[name]))
         return encoder, heads
@@ -373,8 +373,8 @@ class EncoderSAC(DomainBufferMixin, SAC):
         self.logger.record("train/critic_loss", np.mean(critic_losses))
         if len(ent_coef_losses) > 0:
             self.logger.record("train/ent_coef_loss", np.mean(ent_coef_losses))
-        for key, value in zip(self._stats, means_of(self._stats.values(), self.device), strict=True):  # + one read
-            self.logger.record(key, value)
+        for key, mean in zip(self._stats, means_of(self._stats.values(), self.device), strict=True):  # + one read
+            self.logger.record(key, mean)
 
     def _target_q_values(
         self, next_observations: th.Tensor, replay_data: Any, ent_coef: th.Tensor, discounts: th.Tensor | float
@@ -432,7 +432,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
         """The actor's actions and their log-probabilities for the batch, from the critic's features z of it when
         the actor reads the critic's encoder (the same values SB3's actor computes, without a second pass)."""
         if self._actor_reads_critic_features:
-            return self.actor.action_log_prob_of_features(z)  # type: ignore[attr-defined]
+            return cast(SGFDPolicy, self.policy).actor.action_log_prob_of_features(z)  # self.actor is its actor
         return self.actor.action_log_prob(observations)
 
     def _actor_q_values(self, observations: th.Tensor, z: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
@@ -458,7 +458,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
 
     def preprocess(self, observations: th.Tensor) -> th.Tensor:
         """Observations as the buffer returns them, as the encoder takes them (SB3's ``preprocess_obs``)."""
-        return preprocess_obs(observations, self.observation_space, normalize_images=self.policy.normalize_images)
+        return cast(th.Tensor, preprocess_obs(observations, self.observation_space, self.policy.normalize_images))
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """The critic's encoder features z of a batch of observations (as the buffer returns them), without gradient."""

@@ -156,6 +156,7 @@ class SGFDPolicy(SACPolicy):
     """
 
     default_features_extractor_class: type[BaseFeaturesExtractor] | None = None
+    actor: DetachedEncoderActor
 
     def __init__(
         self,
@@ -211,7 +212,7 @@ class SGFDPolicy(SACPolicy):
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.set_training_mode(False)
 
-    def make_actor(self, features_extractor: BaseFeaturesExtractor | None = None) -> Actor:
+    def make_actor(self, features_extractor: BaseFeaturesExtractor | None = None) -> DetachedEncoderActor:
         actor_kwargs = self._update_features_extractor(self.actor_kwargs, features_extractor)
         return DetachedEncoderActor(**actor_kwargs).to(self.device)
 

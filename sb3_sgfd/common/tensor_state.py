@@ -1,6 +1,6 @@
 """A torch module whose state lives in plain attributes (a flag read on every step without a host read, tensors
-whose shape changes), saved in its ``state_dict`` as tensors only, so that SB3's ``get_parameters`` and
-``set_parameters`` round trip (they expect tensors) and ``map_location`` moves it."""
+whose shape changes), saved in its ``state_dict`` as floating-point tensors only, so that SB3's ``get_parameters`` and
+``set_parameters`` round trip (SB3's tools treat every entry as a float tensor) and ``map_location`` moves it."""
 
 from __future__ import annotations
 

@@ -137,6 +137,7 @@ class WeightMemory(TensorStateModule):
         if not self.remembers(features):
             self.features, self.logits, self.updates = features.clone(), logits.clone(), 0
         else:
+            assert self.features is not None and self.logits is not None  # remembers() says so
             # A running mean first, so that the start does not linger.
             keep = min(self.momentum, self.updates / (self.updates + 1))
             self.features = keep * self.features + (1 - keep) * features
@@ -146,7 +147,7 @@ class WeightMemory(TensorStateModule):
     def state_tensors(self) -> dict[str, Tensor]:
         if self.features is None or self.logits is None:
             return {}
-        return {"features": self.features, "logits": self.logits, "updates": torch.tensor(self.updates)}
+        return {"features": self.features, "logits": self.logits, "updates": torch.tensor(float(self.updates))}
 
     def load_state_tensors(self, tensors: dict[str, Tensor]) -> None:
         self.features, self.logits = tensors.get("features"), tensors.get("logits")

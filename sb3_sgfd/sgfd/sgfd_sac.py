@@ -18,10 +18,10 @@ from sb3_sgfd.common.encoder_sac import EncoderSAC
 from sb3_sgfd.sgfd.official_reading import OfficialWeighting
 from sb3_sgfd.sgfd.paper_reading import PaperWeighting
 from sb3_sgfd.sgfd.settings import SGFDSettings, setting_names
-from sb3_sgfd.sgfd.weighting import SampleWeighting, Step
+from sb3_sgfd.sgfd.weighting import SampleWeighting, Step, WeightingFactory
 
 #: The weighting of each reading (``SGFDSettings.reading``): the paper's text, and what the authors' code computes.
-WEIGHTINGS: dict[str, type[SampleWeighting]] = {"paper": PaperWeighting, "official": OfficialWeighting}
+WEIGHTINGS: dict[str, WeightingFactory] = {"paper": PaperWeighting, "official": OfficialWeighting}
 
 _SINGLE_DOMAIN_WARNING = (
     "SGFD_SAC sees a single domain, so there is nothing to decorrelate; it trains as plain SAC. Give it "

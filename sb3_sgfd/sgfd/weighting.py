@@ -17,12 +17,15 @@ beyond the one a classifier round needs to decide whether to train.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import torch
 from torch import Tensor, nn
 
 from sb3_sgfd.common.tensor_state import TensorStateModule
+
+if TYPE_CHECKING:
+    from sb3_sgfd.sgfd.settings import SGFDSettings
 
 #: (number of samples, augmented) -> (features (n, d), domain labels (n,)) of a fresh replay batch.
 FreshFeatures = Callable[[int, bool], tuple[Tensor, Tensor]]
@@ -67,6 +70,8 @@ class SampleWeighting(TensorStateModule):
     ready: bool = True
     classifier: nn.Module
     classifier_optimizer: torch.optim.Optimizer
+    #: Draws the random Fourier features (a checkpoint saves its state with the model's other generators).
+    rff_generator: torch.Generator
 
     def __init__(self, n_features: int, n_domains: int) -> None:
         super().__init__()
@@ -86,7 +91,7 @@ class SampleWeighting(TensorStateModule):
     def load_legacy_state(self, state: dict[str, Any]) -> None:
         """Take back a version 0.1.0 reading's extra state (none unless a reading kept one)."""
 
-    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:  # type: ignore[override]
+    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:
         """The weights of one batch, and the classifier's work of this step.
 
         :param z: the critic's (detached) encoder features of the batch, (n, d)
@@ -104,6 +109,14 @@ class SampleWeighting(TensorStateModule):
         :return: weights (n,) with mean 1, and the decorrelation loss at uniform weights and at the weights
         """
         raise NotImplementedError
+
+
+class WeightingFactory(Protocol):
+    """How ``SGFD_SAC`` builds a reading's weighting: the constructor every reading's class has."""
+
+    def __call__(
+        self, n_features: int, n_domains: int, settings: SGFDSettings, seed: int, device: torch.device | str = ...
+    ) -> SampleWeighting: ...
 
 
 def weight_figures(weights: Tensor, loss_before: Tensor, loss_after: Tensor, probs: Tensor | None) -> dict[str, Tensor]:

@@ -248,7 +248,7 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
         older = (slots - self.pos) % self.buffer_size if self.full else slots
         return in_range & (older >= self.history[slots, envs])
 
-    def _get_samples(
+    def _get_samples(  # type: ignore[override]  # a superset of ReplayBufferSamples (SB3: DictReplayBuffer)
         self,
         batch_inds: np.ndarray,
         env: VecNormalize | None = None,
@@ -322,7 +322,7 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
             arrays.append(discounts)
         # Every array here is the batch's own gather (or rebuilt stack): one transfer, no defensive copies.
         tensors = self._batch_transfer(arrays)
-        return DomainReplayBufferSamples(
+        return DomainReplayBufferSamples(  # type: ignore[misc]  # mypy cannot tell *tensors[:5] fills five fields
             *tensors[:5],
             domains=tensors[5],
             same_episode_observations=tensors[6] if self.same_episode_negatives else None,
