@@ -43,8 +43,9 @@ from stable_baselines3.common.save_util import load_from_pkl
 
 import sgfd_envs.dmc
 from sgfd_zoo import sweep, training
+from sgfd_zoo.checkpoints import read_index
 from sgfd_zoo.cli import main as zoo_main
-from sgfd_zoo.runs import FINISHED_MARKER, RunFolder, read_index
+from sgfd_zoo.runs import FINISHED_MARKER, RunFolder
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 NAME = "SGFD-MT-walker-walk-v0"

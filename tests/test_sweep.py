@@ -23,7 +23,9 @@ import ray
 import yaml
 
 from sgfd_zoo import cli, sweep
-from sgfd_zoo.runs import Checkpoint, RunFolder, atomic_write, find_runs, mark_finished, read_index, write_index
+from sgfd_zoo.checkpoints import Checkpoint, read_index, write_index
+from sgfd_zoo.files import atomic_write
+from sgfd_zoo.runs import RunFolder, find_runs, mark_finished
 
 pytestmark = pytest.mark.ray
 

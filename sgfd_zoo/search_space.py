@@ -1,0 +1,34 @@
+"""The Optuna search space of SGFD's agents, for ``sgfd-zoo optimize`` (rl-zoo3's SAC space plus SGFD's own
+settings); the other agents search rl-zoo3's SAC space."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import optuna
+from rl_zoo3.hyperparams_opt import convert_offpolicy_params
+
+
+def sample_sgfd_sac_params(
+    trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]
+) -> dict[str, Any]:
+    """SAC's search space (as rl-zoo3 samples it) plus SGFD's classifier and weight-solver settings."""
+    sampled = {
+        "one_minus_gamma": trial.suggest_float("one_minus_gamma", 0.0001, 0.03, log=True),
+        "learning_rate": trial.suggest_float("learning_rate", 1e-4, 3e-3, log=True),
+        "batch_size_pow": trial.suggest_int("batch_size_pow", 6, 9),
+        "tau": trial.suggest_float("tau", 0.002, 0.05, log=True),
+        "net_arch": trial.suggest_categorical("net_arch", ["medium", "big"]),
+        "accuracy_threshold": trial.suggest_float("accuracy_threshold", 0.7, 0.98),
+        "n_rff": trial.suggest_int("n_rff", 1, 10),
+        "reweight_iters": trial.suggest_int("reweight_iters", 5, 30),
+        "reweight_lr": trial.suggest_float("reweight_lr", 1e-2, 10.0, log=True),
+        "saliency_temperature": trial.suggest_float("saliency_temperature", 0.05, 2.0, log=True),
+        "saliency_smoothing": trial.suggest_float("saliency_smoothing", 0.0, 0.7),
+    }
+    return convert_sgfd_sac_params(sampled)
+
+
+def convert_sgfd_sac_params(sampled_params: dict[str, Any]) -> dict[str, Any]:
+    """Turn Optuna's sampled values into SGFD_SAC arguments (also used to load a stored trial)."""
+    return convert_offpolicy_params(sampled_params)
