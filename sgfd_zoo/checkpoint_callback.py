@@ -27,6 +27,7 @@ from sgfd_zoo.checkpoints import (
     write_index,
 )
 from sgfd_zoo.files import FileWriteError, StoredFile, UnreadableFile, atomic_write, write_failure
+from sgfd_zoo.locks import RunLock
 
 
 @dataclass(frozen=True)
@@ -89,36 +90,63 @@ CHECKPOINT_PARTS: tuple[CheckpointPart, ...] = (
 
 
 class StopRequest:
-    """Set (by Ctrl-C) to ask training to stop at the next step, after a checkpoint."""
+    """Set (by Ctrl-C or SIGTERM) to ask training to stop at the next step, after a checkpoint.
+
+    :ivar reason: what asked, e.g. ``Ctrl-C``; None until asked
+    :ivar exit_code: the process's exit code for that stop (the shell's 128 + the signal)
+    """
 
     def __init__(self) -> None:
         self.reason: str | None = None
+        self.exit_code = 130
 
-    def request(self, reason: str) -> None:
-        self.reason = reason
+    def request(self, reason: str, exit_code: int = 130) -> None:
+        self.reason, self.exit_code = reason, exit_code
 
     def __bool__(self) -> bool:
         return self.reason is not None
 
 
+#: The most env steps between two checkpoints when ``--save-freq`` is not given.
+LONGEST_CHECKPOINT_INTERVAL = 100_000
+#: Without ``--save-freq``, a run checkpoints at least this many times: a kill costs at most 1/5 of a short run.
+CHECKPOINTS_PER_RUN = 5
+
+
+def default_checkpoint_interval(n_timesteps: int) -> int:
+    """Env steps between checkpoints when ``--save-freq`` is not given: a fifth of the run, at most 100k steps
+    (a paper-scale pixel checkpoint writes a 10.6 GB buffer)."""
+    return max(min(LONGEST_CHECKPOINT_INTERVAL, n_timesteps // CHECKPOINTS_PER_RUN), 1)
+
+
+# The signals that stop training at a checkpoint: a terminal's Ctrl-C, and the SIGTERM a batch system (SLURM's
+# time limit or preemption, a job's cancel) sends before it kills; each with its name and the exit code it gives.
+DEFERRED_SIGNALS = {signal.SIGINT: ("Ctrl-C", 130), signal.SIGTERM: ("SIGTERM", 143)}
+
+
 @contextlib.contextmanager
 def interrupts_deferred(stop: StopRequest) -> Iterator[None]:
-    """While the block runs, the first Ctrl-C (SIGINT) sets ``stop`` instead of raising KeyboardInterrupt, so
-    that training ends at a step boundary with a checkpoint; a second one raises at once. Only in the main
-    thread (the only one Python delivers signals to); elsewhere the block runs unchanged."""
+    """While the block runs, the first Ctrl-C (SIGINT) or SIGTERM sets ``stop`` instead of ending the process, so
+    that training ends at a step boundary with a checkpoint; a second one raises KeyboardInterrupt at once. Only
+    in the main thread (the only one Python delivers signals to); elsewhere the block runs unchanged."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
-    def first_interrupt(signum: int, frame: Any) -> None:
-        stop.request("Ctrl-C")
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+    def at_once(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
 
-    saved = signal.signal(signal.SIGINT, first_interrupt)
+    def first_interrupt(signum: int, frame: Any) -> None:
+        stop.request(*DEFERRED_SIGNALS[signal.Signals(signum)])
+        for deferred in DEFERRED_SIGNALS:
+            signal.signal(deferred, at_once)
+
+    saved = {deferred: signal.signal(deferred, first_interrupt) for deferred in DEFERRED_SIGNALS}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, saved)
+        for deferred, handler in saved.items():
+            signal.signal(deferred, handler)
 
 
 class ResumableCheckpointCallback(BaseCallback):
@@ -133,12 +161,14 @@ class ResumableCheckpointCallback(BaseCallback):
 
     A checkpoint that cannot be written (disk full, or any OSError) is removed again, ``failure`` says why in
     one line, and training stops; ``stopped`` is the step it stopped at. Files an interrupted save left behind
-    (a process killed while writing) are deleted when training starts again.
+    (a process killed while writing) are deleted when training starts again. When another process took the
+    run's ``lock`` over, training stops without a checkpoint and ``taken_over`` says so.
 
     :param save_freq: Save every this many calls (env steps divided by the number of train envs); None: only
         when stopped
     :param save_path: Folder of the checkpoint files (the run folder)
     :param stop: Set to stop training at the next step, after a checkpoint
+    :param lock: The run's lock, held by this process (:mod:`sgfd_zoo.locks`); None: not checked
     :param parts: What a checkpoint holds, in the order written (the model last)
     """
 
@@ -147,8 +177,9 @@ class ResumableCheckpointCallback(BaseCallback):
         save_freq: int | None,
         save_path: str | Path,
         stop: StopRequest | None = None,
-        parts: Sequence[CheckpointPart] = CHECKPOINT_PARTS,
+        lock: RunLock | None = None,
         verbose: int = 0,
+        parts: Sequence[CheckpointPart] = CHECKPOINT_PARTS,
     ):
         super().__init__(verbose)
         if save_freq is not None and save_freq < 1:
@@ -159,7 +190,9 @@ class ResumableCheckpointCallback(BaseCallback):
         self.save_path = Path(save_path)
         self.stop = stop if stop is not None else StopRequest()
         self.parts = tuple(parts)
+        self.lock = lock
         self.failure: str | None = None
+        self.taken_over: str | None = None
         self.stopped: int | None = None
         self._next_save = save_freq or 0
 
@@ -179,6 +212,9 @@ class ResumableCheckpointCallback(BaseCallback):
         # bit for bit. The step after a stopping checkpoint is taken and then dropped (_on_step stops before
         # SB3 stores it).
         if self.stopped is not None:
+            return
+        if self.lock is not None and self.lock.lost is not None:
+            self.taken_over, self.stopped = self.lock.lost, self.num_timesteps
             return
         due = self.save_freq is not None and self.n_calls >= self._next_save
         if not due and not self.stop:

@@ -49,6 +49,123 @@ def env_kwargs_checked(env_kwargs: dict[str, Any]) -> Iterator[None]:
         raise ZooError(f"env_kwargs {env_kwargs}: {first_line(error)}") from error
 
 
+# Env settings the zoo sets itself, per sub-env and per split, and why a configuration may not.
+ZOO_ENV_KWARGS = {
+    "split": "the zoo sets split itself: it trains on 'train' and evaluates on every split of the id ({splits})",
+    "domain": "the zoo gives each sub-env its own domain (sub-env i: domain i % the split's number of domains)",
+}
+
+
+def merged_env_kwargs(configured: dict[str, Any] | None, given: dict[str, Any] | None) -> dict[str, Any]:
+    """The env settings of a run: the configuration's, with those given on the command line (``--env-kwargs``)
+    in their place, key by key (rl-zoo3 would replace the whole dict).
+
+    :param configured: the yaml's ``env_kwargs``
+    :param given: ``--env-kwargs``
+    """
+    if configured is not None and not isinstance(configured, dict):
+        raise ZooError(f"env_kwargs must be a dict of env settings, got {configured!r}")
+    return {**(configured or {}), **(given or {})}
+
+
+def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any], where: str = "env_kwargs") -> None:
+    """Refuse, in one line, an env setting the id does not take (naming a close match and those it takes) and
+    those the zoo sets itself (``split``, ``domain``), before any env is built.
+
+    :param env_id: the env id
+    :param env_kwargs: its settings
+    :param where: how the message names them, e.g. ``--eval-env-kwargs``
+    """
+    import sgfd_envs
+    from sgfd_envs.registry import env_kwargs_of
+
+    for key, why in ZOO_ENV_KWARGS.items():
+        if key in env_kwargs:
+            splits = ", ".join(sgfd_envs.splits(env_id))
+            raise ZooError(f"{where} {key}:{env_kwargs[key]!r}: {why.format(splits=splits)}; leave it out")
+    allowed = [key for key in env_kwargs_of(env_id) if key not in ZOO_ENV_KWARGS]
+    unknown = [key for key in env_kwargs if key not in allowed]
+    if unknown:
+        hints = []
+        for key in unknown:
+            close = difflib.get_close_matches(key, allowed, n=1)
+            hints.append(f"{key!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+        raise ZooError(f"{where}: {env_id} does not take {', '.join(hints)}; it takes {', '.join(allowed)}")
+
+
+def rl_zoo3_schedule_start(key: str, value: Any) -> Any:
+    """The value a hyperparameter starts at, where rl-zoo3 reads a string as a schedule (``lin_0.001``: linear
+    from 0.001 to 0); a ZooError for any other string. Other values are returned as they are.
+
+    :param key: e.g. ``learning_rate``
+    :param value: its value in the configuration
+    """
+    if not isinstance(value, str):
+        return value
+    kind, _, start = value.partition("_")
+    try:
+        if kind == "lin":
+            return float(start)
+    except ValueError:
+        pass
+    raise ZooError(f"{key}={value!r}: expected a number, or a schedule 'lin_<start>' (linear from <start> to 0)")
+
+
+def check_zoo_values(hyperparams: dict[str, Any], steps_given: bool) -> None:
+    """Refuse bad values of the keys rl-zoo3 consumes itself (the algorithm checks the rest): ``n_timesteps``
+    (unless ``-n`` replaces it), ``n_envs``, ``frame_stack``.
+
+    :param hyperparams: the configuration
+    :param steps_given: ``-n`` was given
+    """
+    if not steps_given:
+        steps = hyperparams.get("n_timesteps")
+        if steps is None:
+            raise ZooError("n_timesteps: the configuration has none; give the steps to train with -n")
+        if isinstance(steps, bool) or not isinstance(steps, (int, float)) or steps < 1 or steps != int(steps):
+            raise ZooError(f"n_timesteps={steps!r}: expected a whole number of steps >= 1")
+    n_envs = hyperparams.get("n_envs")
+    if n_envs is not None and (isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1):
+        raise ZooError(f"n_envs={n_envs!r}: expected a whole number of sub-envs >= 1")
+    frames = hyperparams.get("frame_stack")
+    if frames not in (None, False) and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 0):
+        raise ZooError(f"frame_stack={frames!r}: expected a whole number of frames >= 1 (0 or false: none)")
+
+
+def interval_warnings(n_timesteps: int, eval_freq: int | None, save_freq: int | None) -> list[str]:
+    """A warning for each interval longer than the run: what it was given for never comes.
+
+    :param n_timesteps: the run's steps
+    :param eval_freq: ``--eval-freq``, None when not given
+    :param save_freq: ``--save-freq``, None when not given
+    """
+    intervals = []
+    if eval_freq is not None:
+        intervals.append(("--eval-freq", eval_freq, "it is not evaluated during training"))
+    if save_freq is not None:
+        intervals.append(("--save-freq", save_freq, "it has no periodic checkpoint (a Ctrl-C still saves one)"))
+    return [
+        f"warning: {flag} {steps} is more than the run's {n_timesteps} steps: {meaning}"
+        for flag, steps, meaning in intervals
+        if steps > n_timesteps
+    ]
+
+
+def check_algorithm_values(algo_class: type, hyperparams: dict[str, Any]) -> None:
+    """The values the algorithm's constructor takes, checked before anything is built, on the configuration's
+    values (before rl-zoo3 turns a learning rate into a schedule object): a schedule string rl-zoo3 cannot read
+    is refused here, the rest by the algorithm's own check.
+
+    :param algo_class: the algorithm
+    :param hyperparams: the configuration (kwargs hyperparameters already dicts)
+    """
+    values = {key: value for key, value in hyperparams.items() if key not in ZOO_KEYS}
+    if "learning_rate" in values:
+        values["learning_rate"] = rl_zoo3_schedule_start("learning_rate", values["learning_rate"])
+    if isinstance(values.get("train_freq"), list):  # as rl-zoo3 passes it
+        values["train_freq"] = tuple(values["train_freq"])
+
+
 def constructor_arguments(algo_class: type) -> set[str]:
     """The keyword arguments ``algo_class`` takes, following ``**kwargs`` up to the base class that has them."""
     names: set[str] = set()

@@ -4,15 +4,17 @@ while it trains, to stop at a checkpoint and to resume from one."""
 from __future__ import annotations
 
 import errno
+import shlex
 import sys
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import yaml
 from gymnasium import spaces
 from rl_zoo3.exp_manager import ExperimentManager
-from rl_zoo3.hyperparams_opt import HYPERPARAMS_CONVERTER, HYPERPARAMS_SAMPLER
 from rl_zoo3.utils import ALGOS, get_class_by_name
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import ProgressBarCallback
@@ -20,7 +22,6 @@ from stable_baselines3.common.preprocessing import is_image_space, is_image_spac
 from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecTransposeImage
 
 import sgfd_envs
-from sb3_sgfd import SGFD_SAC
 from sb3_sgfd.validation import RefusedTransition
 from sgfd_envs.backgrounds import overlay_bank
 from sgfd_zoo import provenance, training_state
@@ -28,72 +29,36 @@ from sgfd_zoo.algos import SGFD_ALGOS
 from sgfd_zoo.arguments import TrainingStopped, ZooError, train_command
 from sgfd_zoo.callbacks import CSVLogCallback, MultiSplitEvalCallback, ProgressCallback
 from sgfd_zoo.checkpoint_callback import (
-    CHECKPOINT_PARTS,
     ResumableCheckpointCallback,
     StopRequest,
+    default_checkpoint_interval,
     interrupts_deferred,
 )
-from sgfd_zoo.checkpoints import (
-    CHECKPOINT_INDEX,
-    KEPT_CHECKPOINTS,
-    Checkpoint,
-    describe_checkpoint,
-    read_index,
-    remove_checkpoint_files,
-    write_index,
-)
+from sgfd_zoo.checkpoints import Checkpoint
 from sgfd_zoo.config_checks import (
     KWARGS_KEYS,
     check_algo_kwargs,
+    check_algorithm_values,
+    check_env_kwargs,
     check_nested_kwargs,
     check_policy_fits,
+    check_zoo_values,
     env_kwargs_checked,
     first_line,
+    interval_warnings,
     kwargs_value,
+    merged_env_kwargs,
     observes_pixels,
 )
-from sgfd_zoo.files import FileWriteError, UnreadableFile, atomic_write, write_failure
-from sgfd_zoo.runs import NoUsableCheckpoint, RunFolder, mark_finished, runs_by_id
-from sgfd_zoo.search_space import convert_sgfd_sac_params, sample_sgfd_sac_params
+from sgfd_zoo.files import FileWriteError, atomic_write, write_failure
+from sgfd_zoo.locks import ClaimedRun, claim_new_run, claim_run
+from sgfd_zoo.registration import hyperparams_file, register_algorithms
+from sgfd_zoo.resuming import choose_checkpoint, load_checkpoint, prepare_restart, run_to_resume
+from sgfd_zoo.runs import RunFolder, mark_finished
 from sgfd_zoo.training_state import RestoreTrainingState
 
-HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 # Errors of a write that a full disk (or quota, or file size limit) causes.
 NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
-
-
-def hyperparams_file(algo: str, quick: bool = False) -> Path:
-    """The zoo's yaml for ``algo``: paper scale, or the quick configuration for a laptop-size run."""
-    if algo not in SGFD_ALGOS:
-        return HYPERPARAMS_DIR / ("quick" if quick else "") / f"{algo}.yml"
-    entry = SGFD_ALGOS[algo]
-    if quick:
-        return HYPERPARAMS_DIR / "quick" / f"{entry.quick_hyperparams or entry.hyperparams}.yml"
-    return HYPERPARAMS_DIR / f"{entry.hyperparams}.yml"
-
-
-def register_algorithms() -> None:
-    """Add SGFD's keys to rl-zoo3's tables; idempotent. The other agents take rl-zoo3's SAC search space."""
-    for key, algo in SGFD_ALGOS.items():
-        ALGOS[key] = algo.algo_class
-        if algo.algo_class is SGFD_SAC:
-            HYPERPARAMS_SAMPLER[key] = sample_sgfd_sac_params
-            HYPERPARAMS_CONVERTER[key] = convert_sgfd_sac_params
-        elif key != "sac":
-            HYPERPARAMS_SAMPLER[key] = HYPERPARAMS_SAMPLER["sac"]
-            HYPERPARAMS_CONVERTER[key] = HYPERPARAMS_CONVERTER["sac"]
-
-
-#: The most env steps between two checkpoints when ``--save-freq`` is not given.
-LONGEST_CHECKPOINT_INTERVAL = 100_000
-#: Without ``--save-freq``, a run checkpoints at least this many times: a kill costs at most 1/5 of a short run.
-CHECKPOINTS_PER_RUN = 5
-
-
-def default_checkpoint_interval(n_timesteps: int) -> int:
-    """Env steps between checkpoints when ``--save-freq`` is not given: a fifth of the run, at most 100k steps
-    (a paper-scale pixel checkpoint writes a 10.6 GB buffer)."""
-    return max(min(LONGEST_CHECKPOINT_INTERVAL, n_timesteps // CHECKPOINTS_PER_RUN), 1)
 
 
 class SGFDExperimentManager(ExperimentManager):
@@ -104,11 +69,14 @@ class SGFDExperimentManager(ExperimentManager):
     - the training VecEnv has one sub-env per training domain (``n_envs`` defaults to their number);
     - evaluation envs get the same env kwargs as training (rl-zoo3 drops yaml ``env_kwargs`` there),
       and evaluation covers every split: training domains and the unseen ones;
+    - one run, one folder, one writer: a new run claims its folder before anything is built (runs started
+      together each get their own), and the run's lock is held while it trains (:mod:`sgfd_zoo.locks`);
     - checkpoints (model + replay buffer) every ``save_freq`` steps, each file written whole and checked
-      (:class:`~sgfd_zoo.callbacks.ResumableCheckpointCallback`); ``resume=True`` continues the newest run of this
-      algo and env from its newest checkpoint that verifies, the one before when the newest does not;
-    - Ctrl-C stops training at a checkpoint and a full disk stops it cleanly: a :class:`TrainingStopped`
-      says how to continue, and the run is not finished; the final model is followed by ``finished.json``;
+      (:class:`~sgfd_zoo.checkpoint_callback.ResumableCheckpointCallback`); ``resume=True`` continues the newest
+      run of this algo and env from its newest checkpoint that verifies, the one before when the newest does not;
+    - Ctrl-C (or SIGTERM) stops training at a checkpoint and a full disk stops it cleanly: a
+      :class:`TrainingStopped` says how to continue, and the run is not finished; the final model is followed by
+      ``finished.json``;
     - a progress bar by default when the output is a terminal, and progress reports to ``progress_reporter``;
     - a policy that cannot read the observations, and unknown keys in the kwargs hyperparameters (policy,
       features extractor, representation, replay buffer), are refused in one line, naming what fits, before
@@ -126,6 +94,7 @@ class SGFDExperimentManager(ExperimentManager):
     :param command: The ``sgfd-zoo train`` flags of this run, to print the command that continues it
     :param default_save_freq: No ``--save-freq`` was given: checkpoint every :func:`default_checkpoint_interval`
         steps of this run
+    :param default_eval_freq: No ``--eval-freq`` was given: no warning when rl-zoo3's default is longer than the run
     """
 
     def __init__(
@@ -139,8 +108,10 @@ class SGFDExperimentManager(ExperimentManager):
         check_only: bool = False,
         command: Sequence[str] | None = None,
         default_save_freq: bool = False,
+        default_eval_freq: bool = False,
         **kwargs,
     ):
+        register_algorithms()
         algo = args[1] if len(args) > 1 else kwargs["algo"]
         if not kwargs.get("config"):
             kwargs["config"] = str(hyperparams_file(algo, quick))
@@ -148,22 +119,27 @@ class SGFDExperimentManager(ExperimentManager):
             progress = kwargs.get("show_progress") or sys.stdout.isatty()
         kwargs["show_progress"] = progress
         super().__init__(*args, **kwargs)
+        # rl-zoo3's "newest id + 1" is only a guess until the folder is claimed (setup_experiment).
         if run_id is not None:
-            # Runs started together (sgfd-zoo sweep) would race for rl-zoo3's "newest id + 1".
-            self.save_path = str(Path(self.log_path) / f"{self.env_name}_{run_id}")
-            self.params_path = f"{self.save_path}/{self.env_name}"
+            self._set_run_path(Path(self.log_path) / f"{self.env_name}_{run_id}")
         self.run_id = run_id
         self.progress_reporter = progress_reporter
         self.check_only = check_only
         self.resume = resume
         self.command = None if command is None else list(command)
-        self.default_save_freq = default_save_freq
+        self.default_save_freq, self.default_eval_freq = default_save_freq, default_eval_freq
         self.stop = StopRequest()
         self.checkpoint: Checkpoint | None = None
         self.checkpointer: ResumableCheckpointCallback | None = None
         self.training_state: dict[str, Any] | None = None
+        self.claimed: ClaimedRun | None = None
         if resume and not check_only:
-            self._point_at_run_to_resume()
+            named = Path(self.save_path) if run_id is not None else None
+            self._set_run_path(run_to_resume(Path(self.log_folder), self.algo, self.env_name.gym_id, named).path)
+
+    def _set_run_path(self, path: Path) -> None:
+        self.save_path = str(path)
+        self.params_path = f"{self.save_path}/{self.env_name}"
 
     def train_command(self, resume: bool) -> str:
         """The command that continues this run from its checkpoint (``resume``) or starts it again."""
@@ -176,7 +152,13 @@ class SGFDExperimentManager(ExperimentManager):
     # -- configuration ---------------------------------------------------------------------------
 
     def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
+        # --env-kwargs are merged into the configuration's env settings (rl-zoo3 replaces them): hidden from
+        # rl-zoo3 while it reads the yaml.
+        given, self.env_kwargs = self.env_kwargs, {}
         hyperparams, saved = super().read_hyperparameters()
+        if given or "env_kwargs" in hyperparams:
+            hyperparams["env_kwargs"] = saved["env_kwargs"] = merged_env_kwargs(hyperparams.get("env_kwargs"), given)
+        self.env_kwargs = dict(hyperparams.get("env_kwargs") or {})
         if self.algo in SGFD_ALGOS:
             # The ablations are the SGFD entries with one part switched off; the saved config shows it.
             overrides = {**SGFD_ALGOS[self.algo].overrides, **(self.custom_hyperparams or {})}
@@ -185,6 +167,7 @@ class SGFDExperimentManager(ExperimentManager):
         return hyperparams, saved
 
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]):
+        """rl-zoo3's preprocessing, after every key and value is checked (nothing is built here)."""
         explicit_n_envs = "n_envs" in hyperparams
         for key in KWARGS_KEYS:
             if key in hyperparams:
@@ -192,15 +175,23 @@ class SGFDExperimentManager(ExperimentManager):
         # rl-zoo3 eval()s a string replay_buffer_class; a dotted path names a class to import instead.
         if isinstance(hyperparams.get("replay_buffer_class"), str) and "." in hyperparams["replay_buffer_class"]:
             hyperparams["replay_buffer_class"] = get_class_by_name(hyperparams["replay_buffer_class"])
+        check_algo_kwargs(self.algo, hyperparams)
+        check_zoo_values(hyperparams, steps_given=self.n_timesteps > 0)
+        check_algorithm_values(ALGOS[self.algo], hyperparams)
         processed, env_wrapper, callbacks, vec_env_wrapper = super()._preprocess_hyperparams(hyperparams)
-        if self._eval_env_kwargs_args is None:
-            self.eval_env_kwargs = dict(self.env_kwargs)
+        self.eval_env_kwargs = {**self.env_kwargs, **(self._eval_env_kwargs_args or {})}
+        check_env_kwargs(self.env_name.gym_id, self.env_kwargs)
+        check_env_kwargs(self.env_name.gym_id, self.eval_env_kwargs, "evaluation env_kwargs")
         if not explicit_n_envs:
             with env_kwargs_checked(self.env_kwargs):
                 self.n_envs = sgfd_envs.n_domains(self.env_name.gym_id, "train", **self.env_kwargs)
-        check_algo_kwargs(self.algo, processed)
         check_policy_fits(self.algo, processed, observes_pixels(self.env_kwargs))
         check_nested_kwargs(self.algo, processed)
+        if not self.optimize_hyperparameters:
+            save_freq = None if self.default_save_freq else self.save_freq
+            eval_freq = None if self.default_eval_freq else self.eval_freq
+            for warning in interval_warnings(self.n_timesteps, eval_freq, save_freq):
+                print(warning, file=sys.stderr)
         self._add_overlay_images(processed)
         return processed, env_wrapper, callbacks, vec_env_wrapper
 
@@ -245,7 +236,10 @@ class SGFDExperimentManager(ExperimentManager):
             self.save_freq = default_checkpoint_interval(self.n_timesteps)
         # Always there: with --save-freq <= 0 it still saves the checkpoint a Ctrl-C stops at.
         save_freq = max(self.save_freq // self.n_envs, 1) if self.save_freq > 0 else None
-        self.checkpointer = ResumableCheckpointCallback(save_freq, self.save_path, self.stop, verbose=self.verbose)
+        lock = None if self.claimed is None else self.claimed.lock
+        self.checkpointer = ResumableCheckpointCallback(
+            save_freq, self.save_path, self.stop, lock, verbose=self.verbose
+        )
         self.callbacks.append(self.checkpointer)
         if self.eval_freq > 0 and not self.optimize_hyperparameters:
             splits = sgfd_envs.splits(self.env_name.gym_id)
@@ -268,64 +262,77 @@ class SGFDExperimentManager(ExperimentManager):
 
     # -- setting up, resuming -------------------------------------------------------------------
 
-    def _point_at_run_to_resume(self) -> None:
-        if self.run_id is not None:
-            runs = [RunFolder(Path(self.save_path))]
-        else:
-            runs = list(runs_by_id(Path(self.log_path).parent, self.algo, self.env_name.gym_id).values())
-        runs = [run for run in runs if run.checkpoints()]
-        if not runs:
-            raise ZooError(
-                f"--resume: no checkpoint of {self.algo} on {self.env_name.gym_id} under {self.log_path} "
-                "(checkpoints are written every --save-freq steps)"
-            )
-        run = runs[-1]
-        self.save_path = str(run.path)
-        self.params_path = str(run.config_dir)
-        checkpoint, problems = run.usable_checkpoint()
-        try:
-            read_index(run.path)
-        except UnreadableFile as error:
-            problems = [str(error), *problems]
-        if checkpoint is None:
-            raise NoUsableCheckpoint(
-                f"--resume: no usable checkpoint in {run.path}: {'; '.join(problems)}; start the run again with: "
-                f"{self.train_command(resume=False)}"
-            )
-        if problems:
-            print(
-                f"warning: {'; '.join(problems)}: resuming from the checkpoint at {checkpoint.num_timesteps} steps",
-                file=sys.stderr,
-            )
-        self.checkpoint = checkpoint
-
     def setup_experiment(self):
         if self.check_only:
             return self._check_configuration()
-        if self.optimize_hyperparameters or self.continue_training:
+        if self.optimize_hyperparameters:
             return super().setup_experiment()
-        # rl-zoo3's steps in another order: the model (or the checkpoint) first, so that a configuration that
-        # does not build leaves no run folder behind.
+        # rl-zoo3's steps in another order: everything read and checked first, then the run folder claimed, then
+        # the model built (or the checkpoint loaded): a configuration that does not fit leaves no run folder.
         unprocessed, saved_hyperparams = self.read_hyperparameters()
         hyperparams, self.env_wrapper, self.callbacks, self.vec_env_wrapper = self._preprocess_hyperparams(unprocessed)
-        if self.checkpoint is None:
-            self._claim_run_folder()
+        self._claim_run_folder()
+        if self.continue_training:
+            return super().setup_experiment()
         env = self.create_envs(self.n_envs)
         self._hyperparams = self._preprocess_action_noise(hyperparams, saved_hyperparams, env)
-        model = self._build_model(env, self._hyperparams) if self.checkpoint is None else self._load_checkpoint(env)
+        if self.checkpoint is None:
+            model = self._build_model(env, self._hyperparams)
+        else:
+            load = {"tensorboard_log": self.tensorboard_log, "device": self.device, "verbose": self.verbose}
+            run = RunFolder(Path(self.save_path))
+            model, self.training_state = load_checkpoint(ALGOS[self.algo], run, self.checkpoint, env, **load)
         self.create_log_folder()
         self.create_callbacks()
         self._save_config(saved_hyperparams)
         return model, saved_hyperparams
 
+    def _claim_run_folder(self) -> None:
+        """This process's run folder, before anything is built: a new one claimed (processes started together each
+        get their own), or the one ``--run-id`` or ``--resume`` names, locked (one writer at a time); then the
+        checkpoint to resume from, or the folder readied to start again from step 0."""
+        holder = f"sgfd-zoo train --algo {self.algo} --env {self.env_name.gym_id} --seed {self.seed}"
+        try:
+            if self.resume or self.run_id is not None:
+                what = "--resume" if self.resume else f"--run-id {self.run_id}"
+                self.claimed = claim_run(Path(self.save_path), holder, what)
+            else:
+                self.claimed = claim_new_run(Path(self.log_path), str(self.env_name), holder)
+        except OSError as error:
+            where = error.filename or self.save_path
+            raise ZooError(
+                f"-f {self.log_folder}: cannot write a run folder there ({where}: {error.strerror})"
+            ) from None
+        self._set_run_path(self.claimed.path)
+        run = RunFolder(self.claimed.path)
+        if self.resume:
+            self.checkpoint = choose_checkpoint(run, self.train_command(resume=False))
+        elif self.run_id is not None:
+            prepare_restart(run, self.train_command(resume=True))
+
+    def release_run_folder(self) -> None:
+        """Give the run's lock back; a folder claimed for a run that wrote nothing goes too."""
+        if self.claimed is not None:
+            self.claimed.release(remove_if_empty=True)
+            self.claimed = None
+
     def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
-        super()._save_config(saved_hyperparams)
-        # Appended, not replaced: a resumed run's later steps may come from other code.
+        """rl-zoo3's ``config.yml`` and ``args.yml``, and ``command.txt``: the ``sgfd-zoo train`` command this
+        process runs (a sweep's run too, whose process is a Ray worker), each written whole; ``versions.txt``
+        gets a block per start (appended: a resumed run's later steps may come from other code)."""
+        folder = Path(self.params_path)
+        folder.mkdir(parents=True, exist_ok=True)
+        args = OrderedDict([(key, vars(self.args)[key]) for key in sorted(vars(self.args))])
+        atomic_write(folder / "config.yml", lambda tmp: Path(tmp).write_text(yaml.dump(saved_hyperparams)))
+        atomic_write(folder / "args.yml", lambda tmp: Path(tmp).write_text(yaml.dump(args)))
+        command = shlex.join(["sgfd-zoo", "train", *(self.command or [])]) + "\n"
+        atomic_write(folder / "command.txt", lambda tmp: Path(tmp).write_text(command))
         versions = RunFolder(Path(self.save_path)).versions_file
         start = 0 if self.checkpoint is None else self.checkpoint.num_timesteps
         block = f"=== from step {start}, {time.strftime('%Y-%m-%d %H:%M:%S')}\n{provenance.versions()}"
         earlier = versions.read_text() if versions.exists() else ""
         atomic_write(versions, lambda tmp: Path(tmp).write_text(earlier + block))
+        print(f"Log path: {self.save_path}")
 
     def _check_configuration(self) -> tuple[None, dict[str, Any]]:
         """The configuration read, checked and built into a model on the env with a tiny replay buffer: what
@@ -358,66 +365,6 @@ class SGFDExperimentManager(ExperimentManager):
                 f"{type(error).__name__}: {first_line(error)}"
             ) from error
 
-    def _claim_run_folder(self) -> None:
-        """Refuse to start afresh over a finished run or a usable checkpoint; discard checkpoints that are
-        unusable (the run starts again from step 0 there, as the message of ``--resume`` says)."""
-        run = RunFolder.parse(Path(self.save_path))
-        if run is None or not run.path.exists():
-            return
-        if run.finished:
-            raise ZooError(f"--run-id {run.run_id}: {run.path} is a finished run; choose another --run-id")
-        if not run.checkpoints():
-            return
-        checkpoint, problems = run.usable_checkpoint()
-        if checkpoint is not None:
-            raise ZooError(
-                f"--run-id {run.run_id}: {run.path} has a checkpoint at {checkpoint.num_timesteps} steps; continue "
-                f"it with: {self.train_command(resume=True)} (or delete the folder to start it again)"
-            )
-        removed = remove_checkpoint_files(run.path, [])
-        (run.path / CHECKPOINT_INDEX).unlink(missing_ok=True)
-        print(
-            f"Starting {run.path} again from step 0: no checkpoint of it is usable ({'; '.join(problems)}); "
-            f"removed {', '.join([*removed, CHECKPOINT_INDEX])}",
-            file=sys.stderr,
-        )
-
-    def _load_checkpoint(self, env: VecEnv) -> BaseAlgorithm:
-        """The model of ``self.checkpoint`` with the parts it saved; the index then lists it (and what is older)
-        and nothing else: the unusable newer checkpoints and what interrupted saves left are deleted."""
-        run = RunFolder(Path(self.save_path))
-        checkpoint = self.checkpoint
-        assert checkpoint is not None
-        exact = "training_state" in checkpoint.files
-        try:
-            model = ALGOS[self.algo].load(
-                run.path / checkpoint.files["model"].name,
-                env=env,
-                tensorboard_log=self.tensorboard_log,
-                verbose=self.verbose,
-                device=self.device,
-                # with the envs' state restored, the checkpoint's last observation is the envs' own
-                force_reset=not exact,
-            )
-            for part in CHECKPOINT_PARTS:
-                if part.restore is not None and part.name in checkpoint.files:
-                    part.restore(model, str(run.path / checkpoint.files[part.name].name))
-            if exact:  # put back when the resumed training starts, after everything that builds the run
-                self.training_state = training_state.load(run.path / checkpoint.files["training_state"].name)
-        except Exception as error:
-            env.close()
-            raise ZooError(
-                f"--resume: {run.path / checkpoint.files['model'].name} (the checkpoint at {checkpoint.num_timesteps} "
-                f"steps) passes its checks but does not load ({type(error).__name__}: {first_line(error)}); if "
-                "another version of the code wrote it, resume with that version, or delete the folder to start again"
-            ) from error
-        older = [c for c in run.checkpoints() if c.num_timesteps < checkpoint.num_timesteps]
-        kept = [describe_checkpoint(run.path, checkpoint), *older][:KEPT_CHECKPOINTS]
-        write_index(run.path, kept)
-        remove_checkpoint_files(run.path, kept)
-        print(f"Resuming {run.path} from {model.num_timesteps} steps")
-        return model
-
     # -- training and its end ----------------------------------------------------------------------
 
     def _warn_if_inexact(self, model: BaseAlgorithm) -> None:
@@ -449,9 +396,9 @@ class SGFDExperimentManager(ExperimentManager):
                 model.learn(remaining, **kwargs)
         except KeyboardInterrupt:
             raise TrainingStopped(
-                f"Ctrl-C twice: stopped at once at {model.num_timesteps} steps, {self._kept()}; the run is not "
-                f"finished; {self._next_command()}",
-                exit_code=130,
+                f"{self.stop.reason or 'Ctrl-C'} twice: stopped at once at {model.num_timesteps} steps, "
+                f"{self._kept()}; the run is not finished; {self._next_command()}",
+                exit_code=self.stop.exit_code,
             ) from None
         except RefusedTransition as error:
             # Nothing of the bad step was stored; the newest checkpoint is from before it.
@@ -474,6 +421,10 @@ class SGFDExperimentManager(ExperimentManager):
             if model.env is not None:
                 model.env.close()
         assert self.checkpointer is not None
+        if self.checkpointer.taken_over is not None:
+            raise TrainingStopped(
+                f"{self.checkpointer.taken_over}; this process stopped at {model.num_timesteps} steps"
+            )
         if self.checkpointer.failure is not None:
             raise TrainingStopped(f"{self.checkpointer.failure}; free space, then {self._next_command()}")
         # The checkpointer stops between two env steps; the step SB3 took after it is dropped, not trained on.
@@ -482,7 +433,7 @@ class SGFDExperimentManager(ExperimentManager):
             raise TrainingStopped(
                 f"{self.stop.reason} at {stopped_at} steps: {self._kept()}; the run is not finished; "
                 f"{self._next_command()}",
-                exit_code=130,
+                exit_code=self.stop.exit_code,
             )
         return None
 
@@ -503,6 +454,8 @@ class SGFDExperimentManager(ExperimentManager):
         if self.optimize_hyperparameters:
             return super().save_trained_model(model)
         folder = Path(self.save_path)
+        if self.claimed is not None and self.claimed.lock.lost is not None:
+            raise TrainingStopped(f"{self.claimed.lock.lost}; this process saved no final model")
         print(f"Saving to {folder}")
         newest = self.checkpointer.newest() if self.checkpointer is not None else None
         # A Ctrl-C now waits for the end of the save: the run is then finished.

@@ -7,6 +7,7 @@ from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from sgfd_zoo.locks import read_holder
 from sgfd_zoo.runs import RunFolder, find_runs, runs_by_id
 
 
@@ -117,3 +118,19 @@ def choose_run_id(folder: Path, algo: str, env_id: str, seed: int, reserved: Seq
     if preferred not in existing or existing[preferred].seed is None:
         return preferred
     return max([*existing, *reserved, preferred]) + 1
+
+
+def locked_runs(jobs: Sequence[Job]) -> list[tuple[Job, str]]:
+    """The jobs whose run folder another live process writes now (a ``sgfd-zoo train --resume`` of it, another
+    sweep), each with one line naming that process: the sweep leaves them alone.
+
+    :param jobs: the planned runs
+    """
+    locked = []
+    for job in jobs:
+        holder = read_holder(job.run_dir)
+        if holder is not None and holder.gone() is None:
+            locked.append(
+                (job, f"refused: {job.run_dir} is being written by {holder.describe()} (one writer at a time)")
+            )
+    return locked

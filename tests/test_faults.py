@@ -381,11 +381,11 @@ BIG_BUFFER = ["-params", *TINY_PARAMS, "buffer_size:200000"]
 @pytest.mark.parametrize(
     ("signum", "times", "writing"),
     [
-        (signal.SIGKILL, 1, ".tmp-checkpoint_replay_buffer_400_steps.pkl"),
-        (signal.SIGINT, 1, ".tmp-checkpoint_replay_buffer_400_steps.pkl"),
-        (signal.SIGINT, 2, ".tmp-checkpoint_replay_buffer_400_steps.pkl"),
-        (signal.SIGKILL, 1, ".tmp-replay_buffer.pkl"),  # the final save (--save-replay-buffer: the buffer first)
-        (signal.SIGINT, 1, ".tmp-replay_buffer.pkl"),
+        (signal.SIGKILL, 1, "checkpoint_replay_buffer_400_steps.pkl"),
+        (signal.SIGINT, 1, "checkpoint_replay_buffer_400_steps.pkl"),
+        (signal.SIGINT, 2, "checkpoint_replay_buffer_400_steps.pkl"),
+        (signal.SIGKILL, 1, "replay_buffer.pkl"),  # the final save (--save-replay-buffer: the buffer first)
+        (signal.SIGINT, 1, "replay_buffer.pkl"),
     ],
     ids=["kill-in-checkpoint", "ctrl-c-in-checkpoint", "ctrl-c-twice", "kill-in-final-save", "ctrl-c-in-final-save"],
 )
@@ -395,7 +395,8 @@ def test_a_signal_during_a_save(tmp_path: Path, signum: int, times: int, writing
     steps = 600 if "checkpoint" in writing else 400
     args = [*train_args(logs, "--save-replay-buffer", steps=steps), *BIG_BUFFER]
     training_run = Training(args, tmp_path / "first")
-    training_run.wait_until(lambda: (run / writing).exists())
+    # the temporary file of that write (its name is the file's, after a prefix unique to the writing process)
+    training_run.wait_until(lambda: any(run.glob(f".tmp-*-{writing}")))
 
     code = training_run.send(signum, times)
 

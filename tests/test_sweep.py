@@ -22,7 +22,7 @@ import pytest
 import ray
 import yaml
 
-from sgfd_zoo import cli, sweep
+from sgfd_zoo import cli, ray_runs, sweep
 from sgfd_zoo.checkpoints import Checkpoint, read_index, write_index
 from sgfd_zoo.files import atomic_write
 from sgfd_zoo.runs import RunFolder, find_runs, mark_finished
@@ -238,7 +238,7 @@ def test_the_sweep_goes_on_when_its_progress_board_dies(tmp_path: Path) -> None:
             try:
                 # (a Ray call before the sweep's ray.init would start an instance of its own)
                 if ray.is_initialized():
-                    ray.kill(ray.get_actor(sweep.BOARD_NAME))
+                    ray.kill(ray.get_actor(ray_runs.BOARD_NAME))
                     killed.set()
                     return
             except ValueError:  # no board yet
