@@ -205,9 +205,16 @@ def test_sweep_trains_each_seed_into_its_own_folder_reports_failures_and_evaluat
     assert "(new run)" in logs[0] and "(resuming from its checkpoint)" in logs[1]
     assert "--resume: no usable checkpoint in " in logs[1] and "=== so starting it again from step 0" in logs[1]
     assert not (runs[1].path / "progress_from_300.csv").exists()
-    # The failures: in the summary with their reason and log, and no run folder left behind.
-    summary = out.rsplit("\nsweep: ", 1)[1]
-    assert summary.startswith("2 trained, 0 already finished, 2 failed")
+    # The failures: in the summary with their reason and log, and no run folder left behind; then the command
+    # that continues the sweep.
+    summary = out[out.rindex("\nsweep: 2 trained") + 1 :]
+    assert summary.startswith("sweep: 2 trained, 0 already finished, 2 failed\n")
+    continues = summary.splitlines()[-1]
+    assert continues.startswith("sweep: not every run finished; once the failures are fixed, this continues the sweep")
+    assert continues.endswith(
+        f"sgfd-zoo sweep --algos sgfd_sac sac --envs {ENV} --seeds 0 1 -f {folder} --num-cpus 2 "
+        f"--n-episodes 1 {' '.join(TINY)}"
+    )
     for seed in (0, 1):
         log = folder / "sac" / f"{NAME}_{seed + 1}.log"
         assert f"FAILED sac on {ENV} seed {seed}: " in summary and "checkpoint_300_steps" in summary
