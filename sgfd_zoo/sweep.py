@@ -201,7 +201,9 @@ def summary(
     counts = f"{len(trained)} trained, {len(done)} already finished, {len(failed)} failed"
     print(f"\nsweep: {counts}" + (f", {len(stopped)} not finished" if stopped else ""))
     for job, error in failures:
-        print(f"  FAILED {job}: {error} (log: {job.log_file})")
+        checkpoint = job.run.checkpoint
+        kept = "no checkpoint" if checkpoint is None else f"its checkpoint at {checkpoint.num_timesteps} steps is kept"
+        print(f"  FAILED {job}: {error} ({kept}; log: {job.log_file})")
     for job in stopped:
         checkpoint = job.run.checkpoint
         state = (
