@@ -87,7 +87,7 @@ class SGFDExperimentManager(ExperimentManager):
     :param quick: Use the quick configuration (``sgfd_zoo/hyperparams/quick``) when no ``-conf`` is given
     :param resume: Continue the newest run from its last checkpoint instead of starting a new one
     :param progress: Show a progress bar; None: when stdout is a terminal
-    :param run_id: Write to (and resume) the run folder ``<EnvName>_<run_id>``; None: rl-zoo3's newest id + 1
+    :param run_id: Write to (and resume) the run folder ``<EnvName>_<run_id>``; None: a new folder, claimed
     :param progress_reporter: Called every few seconds with a dict of the run's progress (``sgfd-zoo sweep``)
     :param check_only: Only check the configuration: ``setup_experiment`` builds the model on the env with a
         tiny replay buffer, writes nothing and returns no model

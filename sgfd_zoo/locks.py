@@ -201,7 +201,7 @@ def _take_over(path: Path, stale: LockHolder) -> bool:
     except FileNotFoundError:  # another process took it over first
         return False
     try:
-        if read_holder_file(moved) == stale.token:
+        if (read_holder_file(moved) or "") == stale.token:  # "": a lock file that does not parse
             return True
         with contextlib.suppress(FileExistsError):
             os.link(moved, path)
@@ -268,12 +268,16 @@ class RunLock:
             self.beat()
 
     def beat(self) -> None:
-        """Renew the heartbeat, or, when the lock is no longer this process's, set :attr:`lost`."""
+        """Renew the heartbeat; when another process holds the lock now, set :attr:`lost` instead. A lock file
+        removed by hand is made again."""
         if self.lost is not None:
+            return
+        token = read_holder_file(self.path)
+        if token is None and not self.path.exists() and _create(self.path, json.dumps(self.holder.to_json())):
             return
         if read_holder_file(self.path) != self.holder.token:
             holder = read_holder(self.folder)
-            by = holder.describe() if holder is not None else "nobody (its lock file was removed)"
+            by = "another process" if holder is None else holder.describe()
             self.lost = f"the lock of {self.folder} was taken over by {by} while this process trained it"
             return
         with contextlib.suppress(FileNotFoundError):

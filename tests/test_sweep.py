@@ -221,7 +221,8 @@ def test_sweep_trains_each_seed_into_its_own_folder_reports_failures_and_evaluat
         log = folder / "sac" / f"{NAME}_{seed + 1}.log"
         assert f"FAILED sac on {ENV} seed {seed}: " in summary and "checkpoint_300_steps" in summary
         assert f"(its checkpoint at 300 steps is kept; log: {log})" in summary
-        assert "resuming from its checkpoint" in log.read_text() and "Traceback" in log.read_text()
+        assert "resuming from its checkpoint" in log.read_text() and "Traceback" not in log.read_text()
+        assert "sgfd-zoo train: --resume: " in log.read_text()  # the zoo's one line, in the run's log too
         assert "passes its checks but does not load" in summary
         failed = RunFolder(folder / "sac" / f"{NAME}_{seed + 1}")
         assert not failed.finished and failed.checkpoint is not None  # kept as it was, for a fixed code to resume

@@ -182,6 +182,12 @@ def test_a_lock_from_another_host_is_refused_while_its_heartbeat_is_fresh_and_ta
         lock.release()
     assert read_holder(tmp_path) is None and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
+    # A lock file cut short (its writer died writing it, on a file system without hard links): stale, taken over.
+    (tmp_path / LOCK_FILE).write_text('{"token": "th')
+    os.utime(tmp_path / LOCK_FILE, (time.time() - 3600, time.time() - 3600))
+    RunLock.acquire(tmp_path).release()
+    assert "its heartbeat is 60 min old" in capsys.readouterr().err
+
 
 def test_the_heartbeat_renews_the_lock_and_a_writer_whose_lock_was_taken_over_stops_writing(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
@@ -196,6 +202,10 @@ def test_the_heartbeat_renews_the_lock_and_a_writer_whose_lock_was_taken_over_st
         while lock.path.stat().st_mtime < time.time() - 60 and time.monotonic() < deadline:
             time.sleep(0.02)
         assert lock.path.stat().st_mtime > time.time() - 60  # renewed
+        lock.path.unlink()  # removed by hand: made again, the writer goes on
+        while not lock.path.exists() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert read_holder(run).pid == os.getpid() and lock.lost is None
 
         # Another process judged it stale (this one froze) and took it over.
         write_lock(run, "node-3", 99, age=0)
