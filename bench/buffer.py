@@ -25,7 +25,7 @@ from gymnasium import spaces
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack, VecTransposeImage
 
-from sb3_sgfd.buffers import DomainReplayBuffer
+from sb3_sgfd.common.buffers import DomainReplayBuffer
 
 FRAME_SHAPE = (84, 84, 3)
 PAPER_TRANSITIONS = 500_000

@@ -38,41 +38,42 @@ from torch import Tensor, nn
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from sgfd_synthetic import DomainBatch, ScaledLogits, make_domain_batch
 
-from sb3_sgfd.reweighting import (
+from sb3_sgfd.sgfd.decorrelation import (
     WeightMemory,
     effective_sample_size,
     learn_sample_weights,
     solve_weights,
     weighted_pearson,
 )
-from sb3_sgfd.saliency import (
+from sb3_sgfd.sgfd.official_reading import OfficialClassifier, solve_official_weights
+from sb3_sgfd.sgfd.saliency import (
     DomainClassifier,
     classifier_accuracy,
     feature_probabilities,
     saliency_map,
     train_classifier,
 )
-from sb3_sgfd.weighting_official import OfficialClassifier, OfficialWeighting, solve_official_weights
-from sb3_sgfd.weighting_paper import PaperWeighting
+from sb3_sgfd.sgfd.settings import SGFDSettings
 from sgfd_analysis.correlation import collect_states, standardised_sample, state_names
 from sgfd_analysis.correlation import train_domain_classifier as correlation_classifier
 
 N_BATCH, N_TRAIN, N_DOMAINS = 128, 8192, 4  # the memory rows use 40 of the training batches
 # The paper reading's solver settings (SGFD_SAC's defaults), for solve_weights, which has no defaults of its own.
+PAPER = SGFDSettings.paper()
 PAPER_SOLVER = {
-    "n_rff": 5,
-    "iters": PaperWeighting.defaults["reweight_iters"],
-    "lr": PaperWeighting.defaults["reweight_lr"],
-    "momentum": 0.9,
-    "weight_decay": PaperWeighting.defaults["reweight_weight_decay"],
-    "ess_penalty": PaperWeighting.defaults["reweight_ess_penalty"],
+    "n_rff": PAPER.n_rff,
+    "iters": PAPER.reweight_iters,
+    "lr": PAPER.reweight_lr,
+    "momentum": PAPER.reweight_momentum,
+    "weight_decay": PAPER.reweight_weight_decay,
+    "ess_penalty": PAPER.reweight_ess_penalty,
 }
 
 
 def train_domain_classifier(
     z: Tensor, domains: Tensor, steps: int, seed: int, stop_accuracy: float | None = None
 ) -> DomainClassifier:
-    """Adam on minibatches of 256 (sb3_sgfd.saliency.train_classifier, SGFD's loop); with ``stop_accuracy``, it
+    """Adam on minibatches of 256 (sb3_sgfd.sgfd.saliency.train_classifier, SGFD's loop); with ``stop_accuracy``, it
     stops at the first minibatch classified that well, as SGFD_SAC's classifier does at its threshold."""
     torch.manual_seed(seed)
     classifier = DomainClassifier(z.shape[1], N_DOMAINS)
@@ -427,9 +428,7 @@ def timing_table() -> None:
     # Exact solvers cannot do less, so this ratio is a floor.
     official_rff = inspect.signature(solve_official_weights).parameters["n_rff"].default
     paper_macs = product_multiply_adds(N_BATCH, 1, d * PAPER_SOLVER["n_rff"], PAPER_SOLVER["iters"])
-    official_macs = product_multiply_adds(
-        2 * N_BATCH, 2 * official_rff, d, OfficialWeighting.defaults["reweight_iters"]
-    )
+    official_macs = product_multiply_adds(2 * N_BATCH, 2 * official_rff, d, SGFDSettings.official().reweight_iters)
     z = torch.tanh(torch.randn(N_BATCH, d, generator=torch.Generator().manual_seed(0)))
     classifier = DomainClassifier(d, N_DOMAINS)
     probs = feature_probabilities(classifier, z)

@@ -45,7 +45,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecTranspose
 
 import sgfd_envs
 from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, AMBSPolicy, CnnPolicy, DomainReplayBuffer, MlpPolicy
-from sb3_sgfd.saliency import classifier_accuracy, feature_probabilities
+from sb3_sgfd.sgfd.saliency import classifier_accuracy, feature_probabilities
 from sgfd_envs.backgrounds import overlay_bank
 
 PHASES = ("steady", "classifier", "mixed")
@@ -209,7 +209,7 @@ def print_components(model: SGFD_SAC, batch_size: int, device: th.device, repeat
     parts = {
         "classifier accuracy": lambda: classifier_accuracy(model.classifier, z, batch.domains),
         "saliency p(Z_i)": lambda: feature_probabilities(model.classifier, z),
-        f"weights: saliency + solver ({model.reweight_iters} iterations, d = {z.shape[1]})": lambda: (
+        f"weights: saliency + solver ({model.sgfd.reweight_iters} iterations, d = {z.shape[1]})": lambda: (
             model.sample_weights(z, generator)
         ),
     }

@@ -1,23 +1,24 @@
 """SGFD for Stable-Baselines3: saliency-guided features decorrelation by sample reweighting, and the
-visual-RL agents of the paper's tables (DBC, AMBS, TED, SGQN) on one SAC training loop."""
+visual-RL agents of the paper's tables (DBC, AMBS, TED, SGQN) on one SAC training loop.
 
-from sb3_sgfd.ambs import AMBS
-from sb3_sgfd.buffers import DomainReplayBuffer, DomainReplayBufferSamples
+One folder per algorithm (``sgfd/``, ``ambs/``, ``dbc/``, ``ted/``, ``sgqn/``: the algorithm, its policy if it has
+one, its math), and what they share in ``common/``."""
+
+from pathlib import Path
+
+from sb3_sgfd import _legacy
+from sb3_sgfd.ambs import AMBS, AMBSPolicy
+from sb3_sgfd.common.buffers import DomainReplayBuffer, DomainReplayBufferSamples
+from sb3_sgfd.common.encoder_sac import EncoderSAC
+from sb3_sgfd.common.policies import CnnPolicy, EncoderMlpPolicy, MlpPolicy, PixelEncoder, SGFDPolicy
 from sb3_sgfd.dbc import DBC
-from sb3_sgfd.encoder_sac import EncoderSAC
-from sb3_sgfd.policies import (
-    AMBSPolicy,
-    CnnPolicy,
-    EncoderMlpPolicy,
-    MlpPolicy,
-    PixelEncoder,
-    SGFDPolicy,
-)
-from sb3_sgfd.sac import SGFD_SAC
+from sb3_sgfd.sgfd import SGFD_SAC, SGFDSettings
 from sb3_sgfd.sgqn import SGQN
 from sb3_sgfd.ted import TED
 
-__version__ = "0.1.0"
+_legacy.install()
+
+__version__ = (Path(__file__).parent / "version.txt").read_text().strip()
 
 __all__ = [
     "AMBS",
@@ -34,5 +35,6 @@ __all__ = [
     "MlpPolicy",
     "PixelEncoder",
     "SGFDPolicy",
+    "SGFDSettings",
     "__version__",
 ]

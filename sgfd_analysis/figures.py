@@ -28,8 +28,8 @@ from stable_baselines3.common.preprocessing import is_image_space, preprocess_ob
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 import sgfd_envs
-from sb3_sgfd.reweighting import effective_sample_size
-from sb3_sgfd.saliency import classifier_accuracy
+from sb3_sgfd.sgfd.decorrelation import effective_sample_size
+from sb3_sgfd.sgfd.saliency import classifier_accuracy
 from sgfd_zoo.algos import column_name
 from sgfd_zoo.arguments import ZooError, check_env_id
 from sgfd_zoo.experiment import wrap_like_training
@@ -237,7 +237,7 @@ def sgfd_weights(model: Any, observations: np.ndarray, domains: np.ndarray, seed
         "weights": weights.cpu().numpy(),
         "classifier_accuracy": classifier_accuracy(model.classifier, z, labels),
         "classifier_ready": bool(model.weighting.ready),
-        "accuracy_threshold": float(model.accuracy_threshold),
+        "accuracy_threshold": float(model.sgfd.accuracy_threshold),
         "ess": effective_sample_size(weights) / len(weights),
     }
 

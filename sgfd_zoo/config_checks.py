@@ -15,8 +15,9 @@ from rl_zoo3.utils import ALGOS, get_class_by_name
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.torch_layers import FlattenExtractor, NatureCNN
 
-from sb3_sgfd.policies import MlpEncoder, PixelEncoder
-from sb3_sgfd.representation import REPRESENTATIONS
+from sb3_sgfd.common.policies import MlpEncoder, PixelEncoder
+from sb3_sgfd.common.representation import REPRESENTATIONS
+from sb3_sgfd.common.validation import check_hyperparameters
 from sgfd_zoo.arguments import ZooError, check_keywords
 
 # Keys rl-zoo3 consumes itself before the rest goes to the algorithm's constructor.
@@ -154,7 +155,9 @@ def interval_warnings(n_timesteps: int, eval_freq: int | None, save_freq: int | 
 def check_algorithm_values(algo_class: type, hyperparams: dict[str, Any]) -> None:
     """The values the algorithm's constructor takes, checked before anything is built, on the configuration's
     values (before rl-zoo3 turns a learning rate into a schedule object): a schedule string rl-zoo3 cannot read
-    is refused here, the rest by the algorithm's own check.
+    is refused here, the rest by the algorithm's own check (:func:`sb3_sgfd.common.validation.check_hyperparameters`:
+    SAC's arguments, the agent's own, SGFD's settings, the objective's ``representation_kwargs``); its ValueError
+    becomes the zoo's one line.
 
     :param algo_class: the algorithm
     :param hyperparams: the configuration (kwargs hyperparameters already dicts)
@@ -164,6 +167,10 @@ def check_algorithm_values(algo_class: type, hyperparams: dict[str, Any]) -> Non
         values["learning_rate"] = rl_zoo3_schedule_start("learning_rate", values["learning_rate"])
     if isinstance(values.get("train_freq"), list):  # as rl-zoo3 passes it
         values["train_freq"] = tuple(values["train_freq"])
+    try:
+        check_hyperparameters(algo_class, values)
+    except ValueError as error:
+        raise ZooError(first_line(error)) from None
 
 
 def constructor_arguments(algo_class: type) -> set[str]:

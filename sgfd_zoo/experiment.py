@@ -22,7 +22,7 @@ from stable_baselines3.common.preprocessing import is_image_space, is_image_spac
 from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecTransposeImage
 
 import sgfd_envs
-from sb3_sgfd.validation import RefusedTransition
+from sb3_sgfd.common.validation import RefusedTransition
 from sgfd_envs.backgrounds import overlay_bank
 from sgfd_zoo import provenance, training_state
 from sgfd_zoo.algos import SGFD_ALGOS

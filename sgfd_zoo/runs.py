@@ -106,9 +106,9 @@ class NamedRun:
         """The accuracy SGFD's classifier trained to in this run: its config's, else its reading's default."""
         threshold = self.config.get("accuracy_threshold")
         if threshold is None:
-            from sb3_sgfd.sac import READINGS  # here: reading run folders needs no torch (tests/test_layers.py)
+            from sb3_sgfd.sgfd.settings import SGFDSettings  # here: reading run folders needs no torch
 
-            threshold = READINGS[self.config.get("reading", "paper")].defaults["accuracy_threshold"]
+            threshold = SGFDSettings.of_reading(self.config.get("reading", "paper")).accuracy_threshold
         return float(threshold)
 
     def evaluations(self, split: str) -> dict[str, np.ndarray] | None:

@@ -1,4 +1,4 @@
-"""Tests for sb3_sgfd.attribution: SGQN's guided backprop, attribution mask, consistency term and predictor."""
+"""Tests for sb3_sgfd.sgqn.attribution: SGQN's guided backprop, attribution mask, consistency term and predictor."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from sb3_sgfd.attribution import (
+from sb3_sgfd.sgqn.attribution import (
     AttributionDecoder,
     attribution_loss,
     attribution_mask,
@@ -115,7 +115,7 @@ def test_guided_backprop_through_an_sb3_critic():
     from gymnasium import spaces
     from stable_baselines3.sac.policies import ContinuousCritic
 
-    from sb3_sgfd.policies import PixelEncoder
+    from sb3_sgfd.common.policies import PixelEncoder
 
     torch.manual_seed(0)
     obs_space = spaces.Box(0, 255, (6, 16, 16), dtype="uint8")

@@ -1,4 +1,4 @@
-"""Tests for sb3_sgfd.augmentation: DrQ's random shift."""
+"""Tests for sb3_sgfd.common.augmentation: DrQ's random shift."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from sb3_sgfd.augmentation import random_shift
+from sb3_sgfd.common.augmentation import random_shift
 
 
 def seeded(seed: int) -> torch.Generator:

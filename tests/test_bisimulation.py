@@ -1,4 +1,4 @@
-"""Tests for sb3_sgfd.bisimulation: the DBC and AMBS losses, their models, and a small learning check."""
+"""The DBC and AMBS losses, their latent dynamics (sb3_sgfd.common.dynamics) and a small learning check."""
 
 from __future__ import annotations
 
@@ -9,20 +9,15 @@ import pytest
 import torch
 from torch import Tensor, nn
 
-from sb3_sgfd.bisimulation import (
+from sb3_sgfd.ambs.losses import MetricLearner, ambs_distance, ambs_metric_loss, ambs_metric_loss_code, split_halves
+from sb3_sgfd.common.dynamics import (
     DeterministicTransitionModel,
-    MetricLearner,
     ProbabilisticTransitionModel,
     RewardDecoder,
-    ambs_distance,
-    ambs_metric_loss,
-    ambs_metric_loss_code,
-    bisimulation_loss,
-    bisimulation_loss_code,
     gaussian_nll,
-    split_halves,
     wasserstein2,
 )
+from sb3_sgfd.dbc.losses import bisimulation_loss, bisimulation_loss_code
 
 
 def seeded(seed: int) -> torch.Generator:

@@ -6,7 +6,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 
-from sb3_sgfd.buffers import DomainReplayBuffer, DomainReplayBufferSamples
+from sb3_sgfd.common.buffers import DomainReplayBuffer, DomainReplayBufferSamples
 
 OBS_SPACE = spaces.Box(-1e6, 1e6, shape=(3,), dtype=np.float32)
 ACTION_SPACE = spaces.Box(-1, 1, shape=(2,), dtype=np.float32)

@@ -10,7 +10,7 @@ from gymnasium import spaces
 
 import sgfd_envs
 from sb3_sgfd import AMBS, SGFD_SAC, AMBSPolicy, DomainReplayBuffer
-from sb3_sgfd.transfer import BatchTransfer
+from sb3_sgfd.common.transfer import BatchTransfer
 
 IMAGES = spaces.Box(0, 255, shape=(6, 12, 12), dtype=np.uint8)
 ACTIONS = spaces.Box(-1, 1, shape=(2,), dtype=np.float32)

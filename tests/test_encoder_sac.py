@@ -12,7 +12,7 @@ from stable_baselines3.common.vec_env import VecFrameStack, VecTransposeImage
 
 import sgfd_envs
 from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, AMBSPolicy, CnnPolicy, DomainReplayBuffer, EncoderSAC, MlpPolicy
-from sb3_sgfd.encoder_sac import polyak_pairs
+from sb3_sgfd.common.utils import polyak_pairs
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 ENCODER = dict(features_dim=8, n_filters=8, n_layers=2)
@@ -300,7 +300,8 @@ def test_gradient_clipping_counts_only_the_parameters_each_optimiser_steps(monke
 
 def test_each_agent_maps_the_usual_policy_names_to_its_own_policies():
     from sb3_sgfd import EncoderMlpPolicy
-    from sb3_sgfd.policies import AMBSEncoder, MlpEncoder
+    from sb3_sgfd.ambs.policies import AMBSEncoder
+    from sb3_sgfd.common.policies import MlpEncoder
 
     assert type(AMBS("CnnPolicy", pixel_env(), **TINY).policy) is AMBSPolicy
     on_states = AMBS("MlpPolicy", state_env(), augmentation_views=0, **TINY)

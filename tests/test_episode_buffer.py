@@ -17,7 +17,7 @@ from gymnasium import spaces
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sb3_sgfd.buffers import DomainReplayBuffer
+from sb3_sgfd.common.buffers import DomainReplayBuffer
 
 ACTION_SPACE = spaces.Box(-1, 1, shape=(1,), dtype=np.float32)
 # Values per frame: env + 1, episode + 1, step + 1 (no zero, so that padding frames show)

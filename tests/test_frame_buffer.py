@@ -25,8 +25,8 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecFrameStack, VecTransposeImage
 
-import sb3_sgfd.buffers.frames as sgfd_frames
-from sb3_sgfd.buffers import DomainReplayBuffer
+import sb3_sgfd.common.buffers.frames as sgfd_frames
+from sb3_sgfd.common.buffers import DomainReplayBuffer
 
 # Larger than any k * c stacked here, so that SB3 sees the stacks as channel-last images; not square, so
 # that a mixed-up axis would show.

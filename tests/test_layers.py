@@ -39,8 +39,8 @@ def test_the_import_graph_counts_lazy_and_type_only_imports():
     assert {"a.b", "c", "c.d"} <= all_imports(ast.parse(code))
     # the objectives see the algorithm through a Protocol: no edge back to the training loop
     graph = module_imports()
-    assert "sb3_sgfd.representation" in graph["sb3_sgfd.encoder_sac"]
-    assert "sb3_sgfd.encoder_sac" not in graph["sb3_sgfd.representation"]
+    assert "sb3_sgfd.common.representation" in graph["sb3_sgfd.common.encoder_sac"]
+    assert "sb3_sgfd.common.encoder_sac" not in graph["sb3_sgfd.common.representation"]
 
 
 def test_no_import_cycle_between_modules():

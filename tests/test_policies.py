@@ -5,7 +5,7 @@ from gymnasium import spaces
 from stable_baselines3 import SAC
 from stable_baselines3.common.utils import ConstantSchedule
 
-from sb3_sgfd.policies import CnnPolicy, MlpPolicy, PixelEncoder, SGFDPolicy
+from sb3_sgfd.common.policies import CnnPolicy, MlpPolicy, PixelEncoder, SGFDPolicy
 
 IMAGE_SPACE = spaces.Box(0, 255, shape=(9, 32, 32), dtype=np.uint8)
 ACTION_SPACE = spaces.Box(-1, 1, shape=(3,), dtype=np.float32)

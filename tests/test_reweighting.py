@@ -1,4 +1,4 @@
-"""Tests for sb3_sgfd.reweighting: RFF, the decorrelation loss, the weight solver and the check metrics."""
+"""Tests for sb3_sgfd.sgfd.decorrelation: RFF, the decorrelation loss, the weight solver and the check metrics."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import torch
 from sgfd_synthetic import DomainBatch, make_domain_batch
 from torch import Tensor
 
-from sb3_sgfd.reweighting import (
+from sb3_sgfd.sgfd.decorrelation import (
     WeightMemory,
     decorrelation_loss,
     effective_sample_size,

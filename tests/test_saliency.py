@@ -1,4 +1,4 @@
-"""Tests for sb3_sgfd.saliency: the domain classifier and the feature probabilities from its saliency."""
+"""Tests for sb3_sgfd.sgfd.saliency: the domain classifier and the feature probabilities from its saliency."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from sgfd_synthetic import DomainBatch, ScaledLogits, make_domain_batch
 from torch import nn
 from torch.nn import functional as F
 
-from sb3_sgfd.reweighting import effective_sample_size, learn_sample_weights, weighted_pearson
-from sb3_sgfd.saliency import (
+from sb3_sgfd.sgfd.decorrelation import effective_sample_size, learn_sample_weights, weighted_pearson
+from sb3_sgfd.sgfd.saliency import (
     DomainClassifier,
     classifier_accuracy,
     feature_probabilities,

@@ -10,9 +10,9 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 import sgfd_envs
 from sb3_sgfd import SGFD_SAC, DomainReplayBuffer, MlpPolicy
-from sb3_sgfd.reweighting import learn_sample_weights
-from sb3_sgfd.saliency import feature_probabilities
-from sb3_sgfd.weighting import SampleWeighting, Weights
+from sb3_sgfd.sgfd.decorrelation import learn_sample_weights
+from sb3_sgfd.sgfd.saliency import feature_probabilities
+from sb3_sgfd.sgfd.weighting import SampleWeighting, Weights
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 TINY = dict(
@@ -67,9 +67,7 @@ def weighted_by(model: SGFD_SAC, weighting: SampleWeighting) -> SGFD_SAC:
 @pytest.mark.parametrize(("reweight_critic", "reweight_actor"), [(True, True), (False, True), (True, False)])
 def test_weights_multiply_the_critic_and_actor_losses(reweight_critic, reweight_actor):
     # Every sample weighted 0 from the first step: a weighted loss then has zero gradient.
-    model = SGFD_SAC(
-        "MlpPolicy", state_env(), reweight_critic=reweight_critic, reweight_actor=reweight_actor, **TINY
-    )
+    model = SGFD_SAC("MlpPolicy", state_env(), reweight_critic=reweight_critic, reweight_actor=reweight_actor, **TINY)
     weighted_by(model, FixedWeighting(0.0))
     critic = [p.clone() for p in model.critic.parameters()]
     actor = [p.clone() for p in model.actor.latent_pi.parameters()]

@@ -1,4 +1,4 @@
-"""TED classifier and loss (sb3_sgfd.temporal) against direct computations, plus a small learning check."""
+"""TED classifier and loss (sb3_sgfd.ted.losses) against direct computations, plus a small learning check."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from sb3_sgfd.temporal import TEDClassifier, ted_loss, temporal_pairs
+from sb3_sgfd.ted.losses import TEDClassifier, ted_loss, temporal_pairs
 
 
 def hand_made_classifier() -> TEDClassifier:

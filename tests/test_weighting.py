@@ -1,4 +1,4 @@
-"""SGFD's two readings (sb3_sgfd.weighting_paper, sb3_sgfd.weighting_official) and their switch on SGFD_SAC."""
+"""SGFD's two readings (sb3_sgfd.sgfd.paper_reading, sb3_sgfd.sgfd.official_reading) and their switch on SGFD_SAC."""
 
 from __future__ import annotations
 
@@ -13,16 +13,17 @@ from torch.nn import functional as F
 
 import sgfd_envs
 from sb3_sgfd import SGFD_SAC
-from sb3_sgfd.reweighting import WeightMemory, effective_sample_size, learn_sample_weights
-from sb3_sgfd.sac import READINGS
-from sb3_sgfd.weighting import Step
-from sb3_sgfd.weighting_official import (
+from sb3_sgfd.sgfd.decorrelation import WeightMemory, effective_sample_size, learn_sample_weights
+from sb3_sgfd.sgfd.official_reading import (
     OfficialClassifier,
+    OfficialWeighting,
     official_fourier_features,
     official_loss_and_gradient,
     solve_official_weights,
 )
-from sb3_sgfd.weighting_paper import PaperWeighting
+from sb3_sgfd.sgfd.paper_reading import PaperWeighting
+from sb3_sgfd.sgfd.settings import SGFDSettings
+from sb3_sgfd.sgfd.weighting import Step
 
 TINY = dict(learning_starts=100, batch_size=32, policy_kwargs=dict(net_arch=[32, 32]), seed=0)
 
@@ -174,31 +175,28 @@ def test_guided_saliency_is_guided_backprop_of_the_probabilities_averaged_over_c
 
 def test_reading_sets_the_defaults_and_each_stays_overridable():
     official = SGFD_SAC("MlpPolicy", state_env(), reading="official", **TINY)
-    for name, value in READINGS["official"].defaults.items():
-        assert getattr(official, name) == value, name
-    assert official.reweight_critic is False and official.reweight_actor is True
+    assert official.sgfd == SGFDSettings.official(classifier_start=official.sgfd.classifier_start)
+    assert official.sgfd.reweight_critic is False and official.sgfd.reweight_actor is True
     assert isinstance(official.weighting.classifier_optimizer, torch.optim.SGD)
     assert official.weighting.memory is not None and official.weighting.memory.momentum == 0.9
     overridden = SGFD_SAC("MlpPolicy", state_env(), reading="official", reweight_memory=False, reweight_lr=0.5, **TINY)
     assert overridden.weighting.memory is None and overridden.weighting.solver_settings["lr"] == 0.5
     paper = SGFD_SAC("MlpPolicy", state_env(), **TINY)
-    assert isinstance(paper.weighting, PaperWeighting) and paper.reweight_lr == 5.0 and paper.reweight_critic
+    assert isinstance(paper.weighting, PaperWeighting) and paper.sgfd.reweight_lr == 5.0 and paper.sgfd.reweight_critic
     with pytest.raises(ValueError, match="reading must be one of"):
         SGFD_SAC("MlpPolicy", state_env(), reading="offical", **TINY)
 
 
 def test_official_reading_weights_the_actor_from_the_first_update_and_trains_its_classifier_with_sgd(tmp_path):
-    model = SGFD_SAC(
-        "MlpPolicy", state_env(), reading="official", classifier_start=300, classifier_interval=2, **TINY
-    )
+    model = SGFD_SAC("MlpPolicy", state_env(), reading="official", classifier_start=300, classifier_interval=2, **TINY)
     start = [p.clone() for p in model.classifier.parameters()]
     samples = []
     sample = model.replay_buffer.sample
     model.replay_buffer.sample = lambda n, env=None: samples.append(n) or sample(n, env=env)
     ess = []
     record = model.record
-    model.record = lambda key, value: (ess.append(float(value)) if key == "sgfd/weight_ess" else None) or record(
-        key, value
+    model.record = lambda key, value: (
+        (ess.append(float(value)) if key == "sgfd/weight_ess" else None) or record(key, value)
     )
     model.learn(500)
     # weights at every actor update (every 2nd step), never on the critic
@@ -209,19 +207,18 @@ def test_official_reading_weights_the_actor_from_the_first_update_and_trains_its
     assert any(not torch.equal(a, b) for a, b in zip(start, model.classifier.parameters(), strict=True))
     model.save(tmp_path / "official")
     loaded = SGFD_SAC.load(tmp_path / "official", env=state_env())
-    assert loaded.reading == "official" and loaded.weighting.memory.updates == model.weighting.memory.updates
+    assert loaded.sgfd.reading == "official" and loaded.weighting.memory.updates == model.weighting.memory.updates
     torch.testing.assert_close(loaded.weighting.memory.features, model.weighting.memory.features)
     assert loaded.weighting.classifier_optimizer.state_dict()["state"]
 
 
 def test_a_classifier_round_of_the_official_reading_is_sgd_on_cross_entropy_of_its_softmax_output():
     # The code feeds the softmax probabilities to CrossEntropyLoss (a second softmax), with SGD 0.01 / 0.9 / 1e-4.
-    settings = {**READINGS["official"].defaults, "classifier_iters": 1, "classifier_interval": 1}
-    settings.update(accuracy_threshold=1.0, classifier_start=-1, classifier_hidden_dim=16, n_rff=5)
-    settings.update(reweight_momentum=0.9, reweight_max_step=None, use_rff=True, use_saliency=True)
-    del settings["reweight_critic"]
+    settings = SGFDSettings.official(
+        classifier_iters=1, classifier_interval=1, accuracy_threshold=1.0, classifier_start=0, classifier_hidden_dim=16
+    )
     torch.manual_seed(1)
-    weighting = READINGS["official"](4, 2, seed=0, **settings)
+    weighting = OfficialWeighting(4, 2, settings, seed=0)
     reference = OfficialClassifier(4, 2, hidden_dim=16)
     reference.load_state_dict(weighting.classifier.state_dict())
     fresh_z, fresh_labels = torch.randn(160, 4), torch.arange(160) % 2

@@ -1,0 +1,329 @@
+"""Replay buffer that remembers which environment (domain) each transition came from."""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.preprocessing import get_obs_shape
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_sgfd.common.buffers.domains import DomainLabelsMixin, domain_labels
+from sb3_sgfd.common.buffers.episodes import EpisodeIndexMixin
+from sb3_sgfd.common.buffers.frames import _EMPTY_SPACE, FrameStorageMixin, _check_frame_stack
+from sb3_sgfd.common.buffers.slots import stored_pairs
+from sb3_sgfd.common.transfer import BatchTransfer
+from sb3_sgfd.common.validation import check_positive_int, check_transitions
+
+
+class DomainReplayBufferSamples(NamedTuple):
+    """SB3's ``ReplayBufferSamples`` plus the domain label of each sample, so SAC's code keeps working."""
+
+    observations: th.Tensor
+    actions: th.Tensor
+    next_observations: th.Tensor
+    dones: th.Tensor
+    rewards: th.Tensor
+    discounts: th.Tensor | None = None
+    domains: th.Tensor | None = None
+    # With same_episode_negatives: for each sample i, an observation o_j of the same episode with |j - i| >= 2
+    same_episode_observations: th.Tensor | None = None
+
+
+class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin, ReplayBuffer):
+    """
+    Replay buffer that stores the domain label of each transition.
+
+    The label comes from ``info["domain"]`` (set by every ``sgfd_envs`` env); when an env does not
+    provide one, the index of the sub-env in the VecEnv is used, so a VecEnv built with one sub-env
+    per domain needs nothing more.
+
+    With ``frame_stack=k`` the observations must be stacks of ``k`` frames along their first axis, as
+    SB3's ``VecFrameStack`` (then ``VecTransposeImage`` for images) makes them: oldest frame first, newest
+    last, zeros in place of the frames before an episode's start. Each frame is then stored once (the
+    newest frame of every observation, plus the last frame of the next observation where it is not the
+    following observation's frame: episode ends, or an env replaced mid-episode), and both stacks are
+    rebuilt on sampling, identical to the arrays that were added. ``add`` checks that the observations
+    have this structure and raises ``ValueError`` where they do not. Once the buffer wraps, the oldest
+    ``k - 1`` transitions of each env may miss frames of their stacks; those are never sampled.
+
+    In that mode ``observations`` and ``next_observations`` are empty placeholders (so that SB3's memory
+    check does not count, nor the buffer hold, full stacks); the frames are in ``frames``.
+
+    Episodes are tracked at every add: ``episodes[slot, env]`` is the id of the episode of the transition
+    stored there. An env's episode ends with an add where its ``done`` is true (SB3 passes terminated or
+    truncated); its next add starts a new one. With ``same_episode_negatives=True`` every sample also holds
+    ``same_episode_observations``: for each sample i, the observation o_j stored at a slot j of the same
+    episode with |j - i| >= 2 (neither o_{i-1}, o_i nor o_{i+1}, the next observation of i), drawn uniformly
+    among the stored, sampleable ones, as TED's same-episode negatives (Dunion et al., ICLR 2023). Where the
+    episode has no such slot (at most three of its transitions stored and sampleable, i among the middle ones),
+    o_j is drawn uniformly from the sampleable transitions of all other episodes: still a pair that is not
+    consecutive. Where there is none either (the buffer holds nothing else), sampling raises ``ValueError``.
+    Each draw costs O(1), from the episode's first and last add index; the buffer is never scanned. A run
+    resumed with a fresh env and no ``done`` in between counts as one episode: its pairs are still never
+    consecutive ones.
+
+    :param buffer_size: Max number of transitions (over all envs)
+    :param observation_space: Observation space
+    :param action_space: Action space
+    :param device: PyTorch device
+    :param n_envs: Number of parallel environments
+    :param optimize_memory_usage: SB3's memory-efficient variant (next obs read from the next slot);
+        not available with ``frame_stack``
+    :param handle_timeout_termination: Treat time-limit truncation as non-terminal
+    :param frame_stack: Number of frames stacked in each observation, to store each frame once;
+        ``None`` stores the observations as they are
+    :param same_episode_negatives: Also return, with each sample, a non-adjacent observation of its episode
+        (``same_episode_observations``), drawn with the buffer's own numpy generator (seeded once from
+        ``np.random`` at construction)
+    :param n_domains: Number of domain labels, so that a label outside [0, n_domains) is refused at ``add``
+        (EncoderSAC's agents pass their envs' count); None: any non-negative label
+
+    Every ``add`` refuses a non-finite observation, action or reward and a label out of range, naming the
+    sub-env, its domain and the add (:func:`sb3_sgfd.common.validation.check_transitions`): nothing bad is stored, so
+    nothing bad reaches a checkpoint.
+    """
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        device: th.device | str = "auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
+        frame_stack: int | None = None,
+        same_episode_negatives: bool = False,
+        n_domains: int | None = None,
+    ):
+        if n_domains is not None:
+            check_positive_int(n_domains=n_domains)
+        self.n_domains = n_domains
+        if not isinstance(same_episode_negatives, (bool, np.bool_)):
+            raise ValueError(f"same_episode_negatives must be a bool, got {same_episode_negatives!r}")
+        self.frame_stack = _check_frame_stack(frame_stack, observation_space, optimize_memory_usage)
+        # With frame_stack the parent gets a zero-size observation space, so that neither its
+        # allocation nor its memory warning concerns full stacks; the real space is put back below.
+        parent_space = observation_space if self.frame_stack is None else _EMPTY_SPACE
+        super().__init__(
+            buffer_size,
+            parent_space,
+            action_space,
+            device=device,
+            n_envs=n_envs,
+            optimize_memory_usage=optimize_memory_usage,
+            handle_timeout_termination=handle_timeout_termination,
+        )
+        self.domains = np.zeros((self.buffer_size, self.n_envs), dtype=np.int64)
+        # Before the frame storage: its memory check counts these arrays too.
+        self._init_episode_tracking()
+        if self.frame_stack is not None:
+            self.observation_space = observation_space
+            self.obs_shape = get_obs_shape(observation_space)  # type: ignore[assignment]
+            self._init_frame_storage(observation_space)  # type: ignore[arg-type]
+        self.same_episode_negatives = bool(same_episode_negatives)
+        # Seeded from the global RNG only when used, so that a buffer without it leaves the global stream (and
+        # thus every batch) exactly as before; later draws never touch the global RNG.
+        self._negatives_rng = (
+            np.random.default_rng(np.random.randint(2**31 - 1)) if self.same_episode_negatives else None
+        )
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        # Buffers pickled before frame_stack existed stored observations as they are.
+        state.setdefault("frame_stack", None)
+        # Buffers pickled before episode tracking existed: no negatives, episodes rebuilt from the done flags.
+        state.setdefault("same_episode_negatives", False)
+        state.setdefault("_negatives_rng", None)
+        state.setdefault("n_domains", None)
+        self.__dict__.update(state)
+        if "episodes" not in state:
+            self._rebuild_episodes()
+
+    def add(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        labels = domain_labels(infos)
+        ended = np.asarray(done)
+        if ended.size != self.n_envs:
+            raise ValueError(f"done must hold one flag per env ({self.n_envs}), got shape {ended.shape}")
+        check_transitions(
+            observations=obs,
+            next_observations=next_obs,
+            actions=action,
+            rewards=reward,
+            domains=labels,
+            n_domains=self.n_domains,
+            add_index=self._n_adds,
+        )
+        ended = ended.reshape(self.n_envs) != 0
+        if self.frame_stack is None:
+            # Read before super().add() because that call advances self.pos.
+            slot = self.pos
+            self.domains[slot] = labels
+            super().add(obs, next_obs, action, reward, done, infos)
+            self._track_episodes(slot, ended)
+            return
+
+        obs, next_obs = self._as_stacks(obs, "obs"), self._as_stacks(next_obs, "next_obs")
+        continuing = self._check_stacks(obs, next_obs)
+
+        slot = self.pos
+        self.domains[slot] = labels
+        # Actions, rewards, dones, timeouts and the ring position are the parent's business.
+        super().add(self._empty_obs, self._empty_obs, action, reward, done, infos)
+
+        for env_idx in np.flatnonzero(self.has_side_frame[slot]):
+            del self.side_frames[(slot, int(env_idx))]
+        self.has_side_frame[slot] = False
+        last = self._last_slot
+        # With a single slot, the previous transition is the one overwritten now.
+        if last is not None and last != slot:
+            for env_idx in np.flatnonzero(~continuing):
+                self.side_frames[(last, int(env_idx))] = self._last_next_obs[env_idx, -self._channels :].copy()
+                self.has_side_frame[last, env_idx] = True
+
+        history = np.where(continuing, np.minimum(self._last_history.astype(np.intp) + 1, self.frame_stack - 1), 0)
+        self.frames[slot] = obs[:, -self._channels :]
+        self.history[slot] = history
+        self._last_history[:] = history
+        self._last_next_obs[:] = next_obs
+        self._last_done[:] = ended
+        self._last_slot = slot
+        self._track_episodes(slot, ended)
+
+    def reset(self) -> None:
+        super().reset()
+        # The episode bookkeeping is kept: an episode may go on after a reset. Add indices keep counting, so
+        # that the stored part of every episode stays known.
+        if self.frame_stack is not None:
+            self.side_frames.clear()
+            self.has_side_frame[:] = False
+            # The continuity state is kept: an episode may go on after a reset, its older frames
+            # are just no longer stored (see is_sampleable).
+            self._last_slot = None
+
+    def is_sampleable(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> np.ndarray:
+        """
+        Whether each (slot, env) pair holds a transition that can be sampled: it is stored, with
+        ``frame_stack`` all the frames of its observation stack are still stored, and with
+        ``optimize_memory_usage`` its observation is (once full, slot ``pos`` holds the newest next_obs
+        instead: SB3's ``sample`` never draws it).
+
+        :param batch_inds: Slots
+        :param env_indices: Env indices, same shape as ``batch_inds``
+        :return: Boolean array of that shape
+        """
+        n_stored = self.buffer_size if self.full else self.pos
+        batch_inds, env_indices, in_range = stored_pairs(batch_inds, env_indices, n_stored, self.n_envs)
+        if self.optimize_memory_usage and self.full:
+            in_range &= batch_inds != self.pos
+        if self.frame_stack is None or not in_range.any():
+            return in_range
+        slots, envs = np.where(in_range, batch_inds, 0), np.where(in_range, env_indices, 0)
+        # Number of stored transitions older than each slot (0 for the oldest, at self.pos once full)
+        older = (slots - self.pos) % self.buffer_size if self.full else slots
+        return in_range & (older >= self.history[slots, envs])
+
+    def _get_samples(
+        self,
+        batch_inds: np.ndarray,
+        env: VecNormalize | None = None,
+        *,
+        env_indices: np.ndarray | None = None,
+    ) -> DomainReplayBufferSamples:
+        """
+        The transitions at (batch_inds, env_indices).
+
+        :param batch_inds: Slots
+        :param env: VecNormalize to normalize observations and rewards, if any
+        :param env_indices: Env of each sample; drawn uniformly when None (then, with ``frame_stack``, pairs
+            that cannot be sampled are drawn again), else every pair must be sampleable
+        """
+        batch_inds = np.asarray(batch_inds)
+        if env_indices is None:
+            # Same draws in the same order as ReplayBuffer._get_samples, so SGFD_SAC and SAC see the same
+            # batches under the same seed.
+            env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
+            if self.frame_stack is not None:
+                batch_inds, env_indices = self._redraw_unsampleable(batch_inds, env_indices)
+        else:
+            env_indices = np.asarray(env_indices)
+            sampleable = self.is_sampleable(batch_inds, env_indices)
+            if not sampleable.all():
+                bad = np.flatnonzero(~sampleable)[:5]
+                pairs = list(zip(np.asarray(batch_inds)[bad].tolist(), env_indices[bad].tolist(), strict=True))
+                raise ValueError(f"(batch_inds, env_indices) pairs {pairs} hold no sampleable transition")
+
+        if self.frame_stack is not None:
+            obs, next_obs = self._rebuild_stacks(batch_inds, env_indices)
+        else:
+            obs = self.observations[batch_inds, env_indices, :]
+            if self.optimize_memory_usage:
+                next_obs = self.observations[(batch_inds + 1) % self.buffer_size, env_indices, :]
+            else:
+                next_obs = self.next_observations[batch_inds, env_indices, :]
+        data = (
+            self._normalize_obs(obs, env),
+            self.actions[batch_inds, env_indices, :],
+            self._normalize_obs(next_obs, env),
+            (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1),
+            self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env),
+        )
+        arrays = [*data, self.domains[batch_inds, env_indices]]
+        if self.same_episode_negatives:
+            other_slots, other_envs = self._same_episode_indices(batch_inds, env_indices)
+            arrays.append(self._normalize_obs(self._observations_at(other_slots, other_envs), env))
+        # Every array here is the batch's own gather (or rebuilt stack): one transfer, no defensive copies.
+        tensors = self._batch_transfer(arrays)
+        return DomainReplayBufferSamples(
+            *tensors[:5],
+            domains=tensors[5],
+            same_episode_observations=tensors[6] if self.same_episode_negatives else None,
+        )
+
+    @property
+    def _batch_transfer(self) -> BatchTransfer:
+        # Made on first use, and again when the buffer moves (SB3's load_replay_buffer sets the model's device).
+        transfer = getattr(self, "_transfer", None)
+        if transfer is None or transfer.device != th.device(self.device):
+            transfer = self._transfer = BatchTransfer(self.device)
+        return transfer
+
+    def observations_at(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> np.ndarray:
+        """
+        The observations stored at sampleable (slot, env) pairs; with ``frame_stack``, their whole stacks.
+
+        :param batch_inds: Slots, shape (n,)
+        :param env_indices: Env indices, shape (n,)
+        :return: New array of shape (n, *obs_shape), not normalized
+        """
+        batch_inds, env_indices = np.asarray(batch_inds), np.asarray(env_indices)
+        if batch_inds.ndim != 1:
+            raise ValueError(f"batch_inds must be one-dimensional, got shape {batch_inds.shape}")
+        sampleable = self.is_sampleable(batch_inds, env_indices)
+        if not sampleable.all():
+            bad = np.flatnonzero(~sampleable)[:5]
+            pairs = list(zip(batch_inds[bad].tolist(), env_indices[bad].tolist(), strict=True))
+            raise ValueError(f"(batch_inds, env_indices) pairs {pairs} hold no sampleable transition")
+        return self._observations_at(batch_inds, env_indices)
+
+    def storage_nbytes(self) -> int:
+        """Bytes held by the buffer's storage: its arrays, plus, with ``frame_stack``, the side frames."""
+        arrays = [self.actions, self.rewards, self.dones, self.timeouts, self.domains, self.observations]
+        arrays += [self.episodes, self._episode_first, self._episode_last]
+        if not self.optimize_memory_usage:
+            arrays.append(self.next_observations)
+        if self.frame_stack is not None:
+            arrays += [self.frames, self.history, self.has_side_frame, self._last_next_obs]
+            arrays += list(self.side_frames.values())
+        return sum(array.nbytes for array in arrays)

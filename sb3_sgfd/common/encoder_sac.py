@@ -1,0 +1,497 @@
+"""EncoderSAC: SB3's SAC with the machinery every visual-RL agent of the SGFD paper's tables shares.
+
+- the encoder is shared by actor and critic and trained by the critic (``sb3_sgfd.common.policies.SGFDPolicy``), and
+  the critic target's encoder has its own soft-update rate (``encoder_tau``, DBC/AMBS: 0.05);
+- random-shift augmentation of the critic's inputs (DrQ): one view (RAD, SGQN, TED), or two with the target
+  and the critic loss averaged over them (DrQ, AMBS);
+- the actor and the entropy coefficient learn every ``actor_update_interval`` steps, gradient norms are
+  clipped (``max_grad_norm``, AMBS: 40);
+- an optional representation objective (``representation=``: DBC, AMBS, TED or SGQN, see
+  :mod:`sb3_sgfd.common.representation`), and per-sample weights of the critic and actor losses (``_batch_weights``,
+  which :class:`sb3_sgfd.SGFD_SAC` overrides).
+
+``EncoderSAC.train`` is a twin of ``SAC.train``: the lines marked ``# +`` are what it adds. With its defaults
+(no augmentation, no objective, ``encoder_tau = tau``, actor every step, no clipping) it takes SB3 SAC's steps
+bit for bit (tested).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.preprocessing import is_image_space, preprocess_obs
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.utils import polyak_update
+from stable_baselines3.sac import SAC
+from stable_baselines3.sac.policies import SACPolicy
+
+from sb3_sgfd.common.augmentation import random_shift
+from sb3_sgfd.common.buffers import DomainReplayBuffer
+from sb3_sgfd.common.policies import CnnPolicy, EncoderMlpPolicy, MlpPolicy, SGFDPolicy
+from sb3_sgfd.common.representation import REPRESENTATIONS, Batch, Representation, make_representation
+from sb3_sgfd.common.utils import finite, means_of, polyak_pairs, weighted_mean
+from sb3_sgfd.common.validation import check_encoder_sac_arguments, check_sac_arguments
+
+
+class EncoderSAC(SAC):
+    """
+    SAC with a critic-trained shared encoder, augmentation, an encoder target, and the hooks an encoder
+    objective (``representation``) and a sample weighting need. Takes the arguments of SB3's :class:`SAC`
+    (with the SGFD paper's lr 1e-3, batch 128, tau 0.01), plus:
+
+    :param actor_update_interval: Update the actor and entropy coefficient every this many gradient steps
+    :param encoder_tau: Soft-update rate of the critic target's encoder; None: ``tau``
+    :param augmentation_views: Random-shift views of each batch's observations (images only): 0 none, 1 the
+        critic, target and actor see one shifted view (RAD), 2 the critic loss and its target are averaged
+        over two (DrQ, AMBS; the actor sees the first)
+    :param augmentation_pad: Pixels of edge-replicating padding before the random crop (DrQ: 4)
+    :param max_grad_norm: Clip the gradient norm of the critic and of the actor to this; None: no clipping
+    :param ent_coef_lr: Adam learning rate of the entropy coefficient, fixed; None: ``learning_rate`` (SAC)
+        (DBC, AMBS, SGQN: 1e-4)
+    :param ent_coef_beta: Adam's first beta for the entropy coefficient (SAC: 0.9; DBC, AMBS, SGQN: 0.5)
+    :param representation: An encoder objective registered in :mod:`sb3_sgfd.common.representation` ("dbc", "ambs",
+        "ted", "sgqn"), or None
+    :param representation_kwargs: Its hyperparameters
+    :param actor_reuses_features: The actor's Q on the critic's encoder features of the step, detached (no second
+        encoder pass, as the authors' codes detach the encoder); False: SB3's, the batch encoded again after the
+        critic's step (the same values on states, where the features are the observations)
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "MlpPolicy": MlpPolicy,
+        "CnnPolicy": CnnPolicy,
+        "SGFDPolicy": SGFDPolicy,
+        "EncoderMlpPolicy": EncoderMlpPolicy,
+    }
+    #: The objective subclasses train; None: any (or none).
+    fixed_representation: ClassVar[str | None] = None
+
+    representation_model: Representation | None
+
+    def __init__(
+        self,
+        policy: str | type[SACPolicy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 1e-3,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 1000,
+        batch_size: int = 128,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        action_noise: ActionNoise | None = None,
+        replay_buffer_class: type[ReplayBuffer] | None = DomainReplayBuffer,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        optimize_memory_usage: bool = False,
+        ent_coef: str | float = "auto",
+        target_update_interval: int = 1,
+        target_entropy: str | float = "auto",
+        use_sde: bool = False,
+        sde_sample_freq: int = -1,
+        use_sde_at_warmup: bool = False,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        actor_update_interval: int = 1,
+        encoder_tau: float | None = None,
+        augmentation_views: int = 0,
+        augmentation_pad: int = 4,
+        max_grad_norm: float | None = None,
+        ent_coef_lr: float | None = None,
+        ent_coef_beta: float = 0.9,
+        representation: str | None = None,
+        representation_kwargs: dict[str, Any] | None = None,
+        actor_reuses_features: bool = True,
+        _init_setup_model: bool = True,
+    ):
+        arguments = {name: value for name, value in locals().items() if name not in ("self", "policy", "env")}
+        EncoderSAC.check_arguments({**arguments, "representation": representation})
+        if self.fixed_representation is not None and representation != self.fixed_representation:
+            raise ValueError(
+                f"{type(self).__name__} trains the {self.fixed_representation!r} representation, got "
+                f"representation={representation!r} (SGFD_SAC takes any)"
+            )
+        self.actor_update_interval = actor_update_interval
+        self.encoder_tau = encoder_tau
+        self.augmentation_views = augmentation_views
+        self.augmentation_pad = augmentation_pad
+        self.max_grad_norm = max_grad_norm
+        self.ent_coef_lr = ent_coef_lr
+        self.ent_coef_beta = ent_coef_beta
+        self.representation = representation
+        self.representation_kwargs = dict(representation_kwargs or {})
+        self.actor_reuses_features = actor_reuses_features
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            action_noise=action_noise,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            optimize_memory_usage=optimize_memory_usage,
+            ent_coef=ent_coef,
+            target_update_interval=target_update_interval,
+            target_entropy=target_entropy,
+            use_sde=use_sde,
+            sde_sample_freq=sde_sample_freq,
+            use_sde_at_warmup=use_sde_at_warmup,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=_init_setup_model,
+        )
+
+    @classmethod
+    def check_arguments(cls, arguments: Mapping[str, Any]) -> None:
+        """Refuse, in one line naming it, a bad value of any constructor argument among ``arguments`` (any subset):
+        SAC's, this loop's and the objective's ``representation_kwargs``, before anything is built."""
+        check_sac_arguments(arguments)
+        check_encoder_sac_arguments(arguments)
+        if "representation" in arguments or "representation_kwargs" in arguments:
+            representation = arguments.get("representation", cls.fixed_representation)
+            make_representation(representation, arguments.get("representation_kwargs"))
+
+    def _get_policy_from_name(self, policy_name: str) -> type[BasePolicy]:
+        # The objective's policies first: AMBS("CnnPolicy", env) is AMBS's AMBSPolicy, DBC("MlpPolicy", env) an MLP
+        # encoder it can train.
+        objective = REPRESENTATIONS.get(self.representation) if self.representation is not None else None
+        if objective is not None and policy_name in objective.policy_aliases:
+            return objective.policy_aliases[policy_name]
+        return super()._get_policy_from_name(policy_name)
+
+    def _setup_model(self) -> None:
+        # SB3 builds the replay buffer in super()._setup_model(): the objective's needs go in first.
+        representation_model = make_representation(self.representation, self.representation_kwargs)
+        buffer_class = self.replay_buffer_class
+        domain_buffer = buffer_class is not None and issubclass(buffer_class, DomainReplayBuffer)
+        if representation_model is not None and representation_model.needs_same_episode:
+            if not domain_buffer:
+                raise ValueError(f"the {self.representation!r} representation needs a DomainReplayBuffer")
+            self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "same_episode_negatives": True}
+        if domain_buffer and self.env is not None and "n_domains" not in self.replay_buffer_kwargs:
+            # so that a label outside the envs' domains is refused where it enters
+            self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "n_domains": self._domain_count()}
+        super()._setup_model()
+        if self.ent_coef_optimizer is not None and (self.ent_coef_lr is not None or self.ent_coef_beta != 0.9):
+            lr = self.lr_schedule(1) if self.ent_coef_lr is None else self.ent_coef_lr
+            self.ent_coef_optimizer = th.optim.Adam([self.log_ent_coef], lr=lr, betas=(self.ent_coef_beta, 0.999))
+        if self.augmentation_views and not is_image_space(self.observation_space):
+            raise ValueError(
+                f"augmentation_views={self.augmentation_views} shifts images, but the observations are "
+                f"{self.observation_space}; use augmentation_views=0 on states"
+            )
+        if (representation_model is not None or self.augmentation_views) and not isinstance(self.policy, SGFDPolicy):
+            raise ValueError(
+                f"{type(self).__name__} with a representation or augmentation needs a policy whose encoder the "
+                "critic trains (sb3_sgfd.common.policies.SGFDPolicy and its subclasses), got "
+                f"{type(self.policy).__name__}"
+            )
+        encoder = self.critic.features_extractor
+        if representation_model is not None and not any(True for _ in encoder.parameters()):
+            raise ValueError(
+                f"the {self.representation!r} representation trains the encoder, but {type(encoder).__name__} has "
+                "no parameters: use policy='EncoderMlpPolicy' (states) or 'CnnPolicy' (pixels)"
+            )
+        # Augmentation and the objectives draw from generators of their own, seeded from the model's seed:
+        # SAC's random streams stay those of SB3's SAC.
+        seeds = self._derived_seeds()
+        self._augment_generator = th.Generator(device=self.device).manual_seed(seeds["augmentation"])
+        self.representation_model = representation_model
+        if representation_model is not None:
+            representation_model.generator = th.Generator(device=self.device).manual_seed(seeds["representation"])
+            with th.random.fork_rng(devices=[]):
+                # the CPU generator: CUDA streams stay SAC's
+                th.random.default_generator.manual_seed(seeds["representation"])
+                representation_model.setup(self)
+            representation_model.to(self.device)
+        self._encoder_pairs, self._head_pairs = self._target_pairs()
+
+    def _domain_count(self) -> int:
+        """The number of domain labels of the envs: their largest ``n_domains`` attribute, or the number of
+        sub-envs if they have none (SGFD_SAC's ``n_domains`` overrides it)."""
+        try:
+            counts = self.env.get_attr("n_domains")  # type: ignore[union-attr]
+        except AttributeError:
+            return self.env.num_envs  # type: ignore[union-attr]
+        return max(int(count) for count in counts)
+
+    def _derived_seeds(self) -> dict[str, int]:
+        """Seeds of the generators the additions to SAC draw from, all from the model's seed: one stream,
+        so that a subclass's additions do not move its siblings' draws."""
+        draws = np.random.default_rng(self.seed).integers(2**31, size=3)
+        return {"reweighting": int(draws[0]), "augmentation": int(draws[1]), "representation": int(draws[2])}
+
+    def _target_pairs(self) -> tuple[list[tuple[th.Tensor, th.Tensor]], list[tuple[th.Tensor, th.Tensor]]]:
+        """(online, target) parameters of the critic's encoder and of its heads, for the soft updates."""
+        targets = dict(self.critic_target.named_parameters())
+        encoder, heads = [], []
+        for name, param in self.critic.named_parameters():
+            (encoder if name.startswith("features_extractor.") else heads).append((param, targets[name]))
+        return encoder, heads
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        # Switch to train mode (this affects batch norm / dropout)
+        self.policy.set_training_mode(True)
+        # Update optimizers learning rate
+        optimizers = [self.actor.optimizer, self.critic.optimizer]
+        if self.ent_coef_optimizer is not None and self.ent_coef_lr is None:  # + unless its rate is its own
+            optimizers += [self.ent_coef_optimizer]
+
+        # Update learning rate according to lr schedule
+        self._update_learning_rate(optimizers)
+
+        ent_coef_losses, ent_coefs = [], []
+        actor_losses, critic_losses = [], []
+        self._stats: dict[str, list[float | th.Tensor]] = defaultdict(list)  # +
+
+        for gradient_step in range(gradient_steps):
+            # Sample replay buffer
+            replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+            # For n-step replay, discount factor is gamma**n_steps (when no early termination)
+            discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
+            update_index = self._n_updates + gradient_step  # +
+            # + views of the observations for the critic (the first also the actor's), of the next ones for its target
+            observations = self.augment(replay_data.observations)
+            next_observations = self.augment(replay_data.next_observations)
+            # + the actor and the entropy coefficient learn every `actor_update_interval` steps
+            update_actor = update_index % self.actor_update_interval == 0
+
+            # Get current Q-values estimates for each critic network
+            # using action from the replay buffer (+ per view, each with the encoder features it came from; + first,
+            # so that the actor reads the critic's features of the batch instead of encoding it again)
+            critic_outputs = [self._critic_and_features(obs, replay_data.actions) for obs in observations]
+            current_q_values = [q_values for q_values, _ in critic_outputs]
+            z = critic_outputs[0][1].detach()  # +
+
+            # We need to sample because `log_std` may have changed between two gradient steps
+            if self.use_sde:
+                self.actor.reset_noise()
+
+            if update_actor:
+                # Action by the current actor for the sampled state
+                actions_pi, log_prob = self._actor_action_log_prob(observations[0], z)
+                log_prob = log_prob.reshape(-1, 1)
+
+            ent_coef_loss = None
+            if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+                # Important: detach the variable from the graph
+                # so we don't change it with other losses
+                # see https://github.com/rail-berkeley/softlearning/issues/60
+                ent_coef = th.exp(self.log_ent_coef.detach())
+                assert isinstance(self.target_entropy, float)
+                if update_actor:
+                    ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
+                    ent_coef_losses.append(ent_coef_loss.item())
+            else:
+                ent_coef = self.ent_coef_tensor
+
+            ent_coefs.append(ent_coef.item())
+
+            # Optimize entropy coefficient, also called
+            # entropy temperature or alpha in the paper
+            if ent_coef_loss is not None and self.ent_coef_optimizer is not None:
+                self.ent_coef_optimizer.zero_grad()
+                ent_coef_loss.backward()
+                self.ent_coef_optimizer.step()
+
+            with th.no_grad():
+                # + the target averaged over the views of the next observation (one view: SAC's target)
+                target_q_values = sum(
+                    self._target_q_values(next_obs, replay_data, ent_coef, discounts) for next_obs in next_observations
+                ) / len(next_observations)
+
+            # + per-sample weights of the critic and actor losses (SGFD) from the first view's features; None = SAC
+            critic_weights, actor_weights = self._batch_weights(replay_data, z, batch_size, update_index, update_actor)
+
+            # Compute critic loss  (+ mean over views, weighted per sample)
+            critic_loss = sum(
+                0.5 * sum(weighted_mean((current_q - target_q_values) ** 2, critic_weights) for current_q in view)
+                for view in current_q_values
+            ) / len(current_q_values)
+            # + the objective's term of the critic loss (SGQN's consistency)
+            if self.representation_model is not None:
+                extra = self.representation_model.critic_loss(
+                    self, observations[0], replay_data.actions, current_q_values[0]
+                )
+                critic_loss = critic_loss if extra is None else critic_loss + extra
+            assert isinstance(critic_loss, th.Tensor)  # for type checker
+            critic_losses.append(finite(critic_loss.item(), "critic loss", update_index))
+
+            # Optimize the critic
+            self.critic.optimizer.zero_grad()
+            critic_loss.backward()
+            self._clip_grad_norm(self.critic.optimizer)  # +
+            self.critic.optimizer.step()
+
+            # + the representation objective's own step (DBC, AMBS, TED, SGQN)
+            if self.representation_model is not None:
+                batch = Batch(replay_data, observations, next_observations, update_index)
+                for key, value in self.representation_model.update(self, batch).items():
+                    self._stats[f"{self.representation}/{key}"].append(value)
+
+            if update_actor:
+                # Min over all critic networks (+ on this step's features of the batch: no second encoder pass)
+                q_values_pi = th.cat(self._actor_q_values(observations[0], z, actions_pi), dim=1)
+                min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
+                actor_loss = weighted_mean(ent_coef * log_prob - min_qf_pi, actor_weights)  # + weighted
+                actor_losses.append(finite(actor_loss.item(), "actor loss", update_index))
+
+                # Optimize the actor
+                self.actor.optimizer.zero_grad()
+                actor_loss.backward()
+                self._clip_grad_norm(self.actor.optimizer)  # +
+                self.actor.optimizer.step()
+
+            # Update target networks
+            if gradient_step % self.target_update_interval == 0:
+                # + the encoder at its own rate
+                polyak_pairs(self._head_pairs, self.tau)
+                polyak_pairs(self._encoder_pairs, self.tau if self.encoder_tau is None else self.encoder_tau)
+                # Copy running stats, see GH issue #996
+                polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
+
+        self._n_updates += gradient_steps
+
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/ent_coef", np.mean(ent_coefs))
+        if len(actor_losses) > 0:
+            self.logger.record("train/actor_loss", np.mean(actor_losses))
+        self.logger.record("train/critic_loss", np.mean(critic_losses))
+        if len(ent_coef_losses) > 0:
+            self.logger.record("train/ent_coef_loss", np.mean(ent_coef_losses))
+        for key, value in zip(self._stats, means_of(self._stats.values(), self.device), strict=True):  # + one read
+            self.logger.record(key, value)
+
+    def _target_q_values(
+        self, next_observations: th.Tensor, replay_data: Any, ent_coef: th.Tensor, discounts: th.Tensor | float
+    ) -> th.Tensor:
+        """SAC's soft TD target of one view of the next observations."""
+        # Select action according to policy
+        next_actions, next_log_prob = self.actor.action_log_prob(next_observations)
+        # Compute the next Q values: min over all critics targets
+        next_q_values = th.cat(self.critic_target(next_observations, next_actions), dim=1)
+        next_q_values, _ = th.min(next_q_values, dim=1, keepdim=True)
+        # add entropy term
+        next_q_values = next_q_values - ent_coef * next_log_prob.reshape(-1, 1)
+        # td error + entropy term
+        return replay_data.rewards + (1 - replay_data.dones) * discounts * next_q_values
+
+    def augment(self, observations: th.Tensor) -> list[th.Tensor]:
+        """``augmentation_views`` random shifts of a batch of images, or the batch itself without augmentation.
+
+        :param observations: (n, C, H, W) images as the replay buffer returns them
+        """
+        if not self.augmentation_views:
+            return [observations]
+        return [
+            random_shift(observations, self.augmentation_pad, self._augment_generator)
+            for _ in range(self.augmentation_views)
+        ]
+
+    def _critic_and_features(
+        self, observations: th.Tensor, actions: th.Tensor
+    ) -> tuple[tuple[th.Tensor, ...], th.Tensor]:
+        """``self.critic(observations, actions)``, as SB3's ContinuousCritic computes it (its encoder learning
+        through it), and the encoder features it computed: the weights reuse them instead of encoding the
+        batch a second time (on pixels, a tenth of a step).
+        """
+        with th.set_grad_enabled(not self.critic.share_features_extractor):
+            features = self.critic.extract_features(observations, self.critic.features_extractor)
+        q_input = th.cat([features, actions], dim=1)
+        return tuple(q_net(q_input) for q_net in self.critic.q_networks), features
+
+    def _batch_weights(
+        self, replay_data: Any, z: th.Tensor, batch_size: int, update_index: int, update_actor: bool
+    ) -> tuple[th.Tensor | None, th.Tensor | None]:
+        """Per-sample weights (n, 1) of the critic and actor losses; None: unweighted (SAC). SGFD_SAC overrides it.
+
+        :param replay_data: the replay samples
+        :param z: the critic's encoder features of the first observation view (what the critic and actor train
+            on), detached
+        :param batch_size: the batch size
+        :param update_index: index of this gradient step over the run
+        :param update_actor: whether the actor learns at this step (its weights are used only then)
+        """
+        return None, None
+
+    def _actor_action_log_prob(self, observations: th.Tensor, z: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """The actor's actions and their log-probabilities for the batch, from the critic's features z of it when
+        the actor reads the critic's encoder (the same values SB3's actor computes, without a second pass)."""
+        if self._actor_reads_critic_features:
+            return self.actor.action_log_prob_of_features(z)  # type: ignore[attr-defined]
+        return self.actor.action_log_prob(observations)
+
+    def _actor_q_values(self, observations: th.Tensor, z: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
+        """The critic's Q of the actor's actions. With ``actor_reuses_features``, on the critic's (detached)
+        features of this step: the authors' codes evaluate it with the encoder detached, and the features are
+        already computed; else SB3's, the batch encoded again by the critic's updated encoder, whose gradient the
+        actor's optimiser then throws away."""
+        if self.actor_reuses_features and self._actor_reads_critic_features:
+            q_input = th.cat([z, actions], dim=1)
+            return tuple(q_net(q_input) for q_net in self.critic.q_networks)
+        return self.critic(observations, actions)
+
+    @property
+    def _actor_reads_critic_features(self) -> bool:
+        # SGFDPolicy: one encoder, the critic's, which the actor reads detached (SB3's own SAC policies: not so).
+        return isinstance(self.policy, SGFDPolicy)
+
+    def _clip_grad_norm(self, optimizer: th.optim.Optimizer) -> None:
+        """Clip the gradient norm of the parameters ``optimizer`` steps (the actor's exclude the shared encoder)."""
+        if self.max_grad_norm is not None:
+            parameters = [param for group in optimizer.param_groups for param in group["params"]]
+            th.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
+
+    def preprocess(self, observations: th.Tensor) -> th.Tensor:
+        """Observations as the buffer returns them, as the encoder takes them (SB3's ``preprocess_obs``)."""
+        return preprocess_obs(observations, self.observation_space, normalize_images=self.policy.normalize_images)
+
+    def encode(self, observations: th.Tensor) -> th.Tensor:
+        """The critic's encoder features z of a batch of observations (as the buffer returns them), without gradient."""
+        with th.no_grad():
+            return self.critic.extract_features(observations, self.critic.features_extractor)
+
+    def generators(self) -> dict[str, th.Generator]:
+        """The generators this algorithm draws from beside the global ones, by name: what a checkpoint saves so
+        that a resumed run continues their streams (``sgfd_zoo.training_state``)."""
+        generators = {"augmentation": self._augment_generator}
+        if self.representation_model is not None:
+            generators["representation"] = self.representation_model.generator
+        return generators
+
+    def record(self, key: str, value: float | th.Tensor) -> None:
+        """Log a figure of this gradient step; ``train`` logs the mean over its steps."""
+        self._stats[key].append(value)
+
+    def _excluded_save_params(self) -> list[str]:
+        excluded = ["representation_model", "_augment_generator", "_stats", "_encoder_pairs", "_head_pairs"]
+        return [*super()._excluded_save_params(), *excluded]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, saved_pytorch_variables = super()._get_torch_save_params()
+        if self.representation_model is not None:
+            names = ["representation_model"]
+            names += [f"representation_model.{name}" for name in self.representation_model.optimizer_names()]
+            state_dicts = [*state_dicts, *names]
+        return state_dicts, saved_pytorch_variables

@@ -1,0 +1,442 @@
+"""Argument and data checks, in one place and with one policy: values are checked where they enter (a
+constructor, a public function, the replay buffer's ``add``), never on every gradient step, and a refusal names
+the argument, the value and what was expected.
+
+Pure torch and numpy, no Stable-Baselines3 import: the math modules check their tensors with these too. A check
+that would read a GPU tensor back to the host (its values, not its shape) is only made where the caller asks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Collection, Mapping
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+
+def check_choice(name: str, value: object, choices: Collection[str]) -> None:
+    """Refuse ``value`` unless it is one of ``choices``, naming the argument ``name`` and the choices."""
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{name} must be one of {sorted(choices)}, got {value!r}")
+
+
+def check_positive_int(**values: int) -> None:
+    """Refuse any of ``values`` that is not a positive integer, by name."""
+    for name, value in values.items():
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+
+
+def check_non_negative_int(**values: int) -> None:
+    """Refuse any of ``values`` that is not an integer >= 0, by name."""
+    for name, value in values.items():
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+
+
+def check_non_negative(**values: float) -> None:
+    """Refuse any of ``values`` that is not a finite number >= 0, by name."""
+    for name, value in values.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < math.inf:
+            raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+
+def check_positive(**values: float) -> None:
+    """Refuse any of ``values`` that is not a finite number > 0, by name."""
+    for name, value in values.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not 0 < value < math.inf:
+            raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+
+
+def check_interval(
+    name: str,
+    value: object,
+    low: float,
+    high: float,
+    *,
+    low_open: bool = False,
+    high_open: bool = False,
+    also: str = "",
+) -> None:
+    """Refuse ``value`` unless it is a number in the interval from ``low`` to ``high`` (open at an end where said),
+    naming the argument ``name`` (and ``also``, what else it may be)."""
+    number = isinstance(value, (int, float, np.floating)) and not isinstance(value, bool)
+    above = number and (low < value if low_open else low <= value)  # type: ignore[operator]
+    below = number and (value < high if high_open else value <= high)  # type: ignore[operator]
+    if not (above and below):
+        interval = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+        alternative = f" or {also}" if also else ""
+        raise ValueError(f"{name} must be a number in {interval}{alternative}, got {value!r}")
+
+
+def check_bool(**values: bool) -> None:
+    """Refuse any of ``values`` that is not True or False, by name."""
+    for name, value in values.items():
+        if not isinstance(value, (bool, np.bool_)):
+            raise ValueError(f"{name} must be True or False, got {value!r}")
+
+
+# --- the arguments of SB3's SAC, which every agent here takes ---
+
+
+def _learning_rate(name: str, value: Any) -> None:
+    if callable(value):
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not 0 < value < math.inf:
+        raise ValueError(
+            f"{name} must be a number > 0 or a schedule (a function of the remaining progress), got {value!r}"
+        )
+
+
+def _train_freq(name: str, value: Any) -> None:
+    if isinstance(value, (tuple, list)):
+        if len(value) != 2 or value[1] not in ("step", "episode"):
+            raise ValueError(f"{name} must be an int >= 1 or (int >= 1, 'step' or 'episode'), got {value!r}")
+        value = value[0]
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be an int >= 1 or (int >= 1, 'step' or 'episode'), got {value!r}")
+
+
+def _gradient_steps(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not (value >= 1 or value == -1):
+        raise ValueError(f"{name} must be an int >= 1, or -1 (as many as env steps were collected), got {value!r}")
+
+
+def _ent_coef(name: str, value: Any) -> None:
+    if isinstance(value, str):
+        if value == "auto":
+            return
+        start = value.removeprefix("auto_")
+        try:
+            valid = value.startswith("auto_") and 0 < float(start) < math.inf
+        except ValueError:
+            valid = False
+        if valid:
+            return
+    elif not isinstance(value, bool) and isinstance(value, (int, float, np.floating)) and 0 < value < math.inf:
+        return
+    raise ValueError(f"{name} must be 'auto', 'auto_<initial value>' or a number > 0, got {value!r}")
+
+
+def _target_entropy(name: str, value: Any) -> None:
+    number = not isinstance(value, bool) and isinstance(value, (int, float, np.floating))
+    if value == "auto" or (number and math.isfinite(value)):
+        return
+    raise ValueError(f"{name} must be 'auto' or a finite number, got {value!r}")
+
+
+def _seed(name: str, value: Any) -> None:
+    if value is not None:
+        check_non_negative_int(**{name: value})
+
+
+#: SB3 SAC's arguments and their checks (the agents' own are their ``check_arguments``)
+SAC_ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
+    "learning_rate": _learning_rate,
+    "buffer_size": lambda name, value: check_positive_int(**{name: value}),
+    "learning_starts": lambda name, value: check_non_negative_int(**{name: value}),
+    "batch_size": lambda name, value: check_positive_int(**{name: value}),
+    "tau": lambda name, value: check_interval(name, value, 0.0, 1.0, low_open=True),
+    "gamma": lambda name, value: check_interval(name, value, 0.0, 1.0),
+    "train_freq": _train_freq,
+    "gradient_steps": _gradient_steps,
+    "n_steps": lambda name, value: check_positive_int(**{name: value}),
+    "ent_coef": _ent_coef,
+    "target_update_interval": lambda name, value: check_positive_int(**{name: value}),
+    "target_entropy": _target_entropy,
+    "stats_window_size": lambda name, value: check_positive_int(**{name: value}),
+    "seed": _seed,
+}
+
+
+def check_sac_arguments(arguments: Mapping[str, Any]) -> None:
+    """Refuse a bad value of any of SB3 SAC's arguments among ``arguments`` (SAC itself takes them unchecked: a
+    batch size of 0 or a one-slot buffer would train on), naming the argument, the value and what is allowed."""
+    for name, value in arguments.items():
+        if name in SAC_ARGUMENT_CHECKS:
+            SAC_ARGUMENT_CHECKS[name](name, value)
+
+
+def _augmentation_views(name: str, value: Any) -> None:
+    if isinstance(value, bool) or value not in (0, 1, 2):
+        raise ValueError(f"{name} must be 0, 1 or 2, got {value!r}")
+
+
+def _optional_positive(name: str, value: Any) -> None:
+    if value is not None:
+        check_positive(**{name: value})
+
+
+#: The arguments EncoderSAC adds to SAC's, and their checks
+ENCODER_SAC_ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
+    "actor_update_interval": lambda name, value: check_positive_int(**{name: value}),
+    "augmentation_views": _augmentation_views,
+    "augmentation_pad": lambda name, value: check_non_negative_int(**{name: value}),
+    "encoder_tau": lambda name, value: value is None or check_interval(name, value, 0.0, 1.0, low_open=True),
+    "max_grad_norm": _optional_positive,
+    "ent_coef_lr": _optional_positive,
+    "ent_coef_beta": lambda name, value: check_interval(name, value, 0.0, 1.0, high_open=True),
+    "actor_reuses_features": lambda name, value: check_bool(**{name: value}),
+}
+
+
+def check_encoder_sac_arguments(arguments: Mapping[str, Any]) -> None:
+    """Refuse a bad value of any of the arguments EncoderSAC adds to SAC's among ``arguments``, by name."""
+    for name, value in arguments.items():
+        if name in ENCODER_SAC_ARGUMENT_CHECKS:
+            ENCODER_SAC_ARGUMENT_CHECKS[name](name, value)
+
+
+def check_hyperparameters(algo_class: type, hyperparameters: Mapping[str, Any]) -> None:
+    """Refuse, before anything is built, a bad value of a constructor argument of ``algo_class`` among
+    ``hyperparameters``: through the algorithm's own ``check_arguments`` (the agents of this package: SAC's
+    arguments, their own, SGFD's settings and the objective's ``representation_kwargs``), else SAC's checks.
+
+    :param algo_class: the algorithm class the hyperparameters are for (e.g. ``SGFD_SAC`` or SB3's ``SAC``)
+    :param hyperparameters: its keyword arguments, as the zoo's yaml gives them
+    :raises ValueError: one line naming the argument, the value and what is allowed
+    """
+    check = getattr(algo_class, "check_arguments", None)
+    if check is not None:
+        check(hyperparameters)
+    else:
+        check_sac_arguments(hyperparameters)
+
+
+class RefusedTransition(ValueError):
+    """An env's transition the replay buffer would not store (:func:`check_transitions`): training stops at it,
+    nothing of it is stored."""
+
+
+def check_transitions(
+    *,
+    observations: np.ndarray,
+    next_observations: np.ndarray,
+    actions: np.ndarray,
+    rewards: np.ndarray,
+    domains: np.ndarray,
+    n_domains: int | None,
+    add_index: int,
+) -> None:
+    """Refuse one add's transitions (one row per sub-env) if an observation, next observation, action or reward is
+    not finite, or a domain label lies outside [0, ``n_domains``): the error names the sub-env, its domain, the add
+    and the value, before anything is stored.
+
+    :param add_index: the buffer's count of earlier adds (the vector step of the run, for an unbroken run)
+    """
+    n_envs = len(domains)
+    where = "at add {add} (sub-env {env}, domain {domain})"
+    if n_domains is not None:
+        outside = np.flatnonzero(domains >= n_domains)
+        if len(outside) > 0:
+            env = int(outside[0])
+            raise RefusedTransition(
+                f"the replay buffer refuses domain label {int(domains[env])} from info['domain'] "
+                + where.format(add=add_index, env=env, domain=int(domains[env]))
+                + f": labels must lie in [0, n_domains={n_domains}); pass n_domains= at least one more than the "
+                "largest label"
+            )
+    for name, values in (
+        ("observation", observations),
+        ("next observation", next_observations),
+        ("action", actions),
+        ("reward", rewards),
+    ):
+        array = np.asarray(values)
+        if array.dtype.kind not in "fc":
+            continue  # integer images are finite
+        rows = array.reshape(n_envs, -1)
+        finite = np.isfinite(rows).all(axis=1)
+        if not finite.all():
+            env = int(np.flatnonzero(~finite)[0])
+            value = rows[env][~np.isfinite(rows[env])][0]
+            raise RefusedTransition(
+                f"the replay buffer refuses a non-finite {name} ({value}) "
+                + where.format(add=add_index, env=env, domain=int(domains[env]))
+                + ": the env produced it; nothing of this add was stored"
+            )
+
+
+# --- tensors of the math modules ---
+
+
+def check_matrix(
+    x: object, name: str, rows: int | None = None, cols: int | None = None, *, min_rows: int = 1, finite: bool = False
+) -> None:
+    """Refuse ``x`` unless it is a floating-point (n, d) tensor, with ``rows`` rows and ``cols`` columns where given
+    (at least ``min_rows`` and 1 otherwise); with ``finite``, also a NaN or inf in it (a host read)."""
+    if not isinstance(x, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
+    if not x.is_floating_point():
+        raise TypeError(f"{name} must be a floating-point tensor, got {x.dtype}")
+    wrong_rows = x.dim() == 2 and (x.shape[0] != rows if rows is not None else x.shape[0] < min_rows)
+    wrong_cols = x.dim() == 2 and (x.shape[1] != cols if cols is not None else x.shape[1] < 1)
+    if x.dim() != 2 or wrong_rows or wrong_cols:
+        expected = f"({'n' if rows is None else rows}, {'d' if cols is None else cols})"
+        at_least = f" with n >= {min_rows}" if rows is None and min_rows > 1 else ""
+        raise ValueError(f"{name} must have shape {expected}{at_least}, got {tuple(x.shape)}")
+    if finite and not torch.isfinite(x).all():
+        raise ValueError(f"{name} contains NaN or inf values")
+
+
+def check_same_shape(x: object, name: str, like: Tensor, like_name: str) -> None:
+    """Refuse ``x`` unless it is a floating-point matrix of the shape of ``like`` (called ``like_name``)."""
+    check_matrix(x, name)
+    assert isinstance(x, Tensor)
+    if x.shape != like.shape:
+        raise ValueError(f"{name} must have the shape of {like_name} {tuple(like.shape)}, got {tuple(x.shape)}")
+
+
+def check_rewards(rewards: object, n: int) -> Tensor:
+    """Rewards (n,) or (n, 1) as a (n,) tensor."""
+    if not isinstance(rewards, Tensor) or rewards.shape not in ((n,), (n, 1)):
+        shape = tuple(rewards.shape) if isinstance(rewards, Tensor) else type(rewards).__name__
+        raise ValueError(f"rewards must be a tensor of shape ({n},) or ({n}, 1), got {shape}")
+    return rewards.reshape(n)
+
+
+def check_perm(perm: object, n: int) -> None:
+    """Refuse a pairing of n rows that is not an integer (n,) tensor. Its values are not read: whether it is a
+    permutation would be a host read on every gradient step, and any pairing of the rows is a well-defined loss."""
+    if not isinstance(perm, Tensor) or perm.shape != (n,) or perm.dtype not in (torch.int32, torch.int64):
+        shape = f"{tuple(perm.shape)} {perm.dtype}" if isinstance(perm, Tensor) else type(perm).__name__
+        raise ValueError(f"perm must be an integer tensor of shape ({n},), got {shape}")
+
+
+def check_gamma(gamma: object) -> None:
+    """Refuse a discount that is not a number in [0, 1)."""
+    if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not 0 <= gamma < 1:
+        raise ValueError(f"gamma must be a number in [0, 1), got {gamma!r}")
+
+
+def check_reward_weight(reward_weight: object) -> Tensor | float:
+    """AMBS's balance c as given: a float in [0, 1], or a 0-d float tensor, detached (a softmax ratio, in [0, 1] by
+    construction: its value is not read, which would be a host read on every gradient step)."""
+    if isinstance(reward_weight, Tensor):
+        if reward_weight.dim() != 0 or not reward_weight.is_floating_point():
+            raise ValueError(f"reward_weight must be a float or a 0-d float tensor, got shape {reward_weight.shape}")
+        return reward_weight.detach()
+    if not isinstance(reward_weight, (int, float)) or isinstance(reward_weight, bool):
+        raise ValueError(f"reward_weight must be a float or a 0-d float tensor, got {type(reward_weight).__name__}")
+    if not 0 <= reward_weight <= 1:
+        raise ValueError(f"reward_weight must be in [0, 1], got {reward_weight!r}")
+    return float(reward_weight)
+
+
+def check_reward_dim(reward_dim: object, d: int) -> None:
+    """Refuse a reward half of a d-feature representation that is not an int in [1, d - 1]."""
+    if isinstance(reward_dim, bool) or not isinstance(reward_dim, int) or not 0 < reward_dim < d:
+        raise ValueError(f"reward_dim must be an int in [1, {d - 1}] for {d} features, got {reward_dim!r}")
+
+
+def check_metric_learner(learner: object, name: str, half_dim: int) -> None:
+    """Refuse an AMBS meta-learner (a module with a ``half_dim``) that does not measure halves of ``half_dim``."""
+    learner_dim = getattr(learner, "half_dim", None)
+    if not isinstance(learner, nn.Module) or learner_dim != half_dim:
+        got = f"half_dim {learner_dim}" if learner_dim is not None else type(learner).__name__
+        raise ValueError(f"{name} must be a MetricLearner with half_dim {half_dim}, got {got}")
+
+
+def check_batch(z: Tensor, name: str) -> None:
+    """Refuse a batch of features that is not a finite floating-point (n, d) tensor with n >= 2 (a host read)."""
+    if not isinstance(z, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(z).__name__}")
+    if z.dim() != 2 or z.shape[0] < 2 or z.shape[1] < 1:
+        raise ValueError(f"{name} must have shape (n, d) with n >= 2 and d >= 1, got {tuple(z.shape)}")
+    if not z.is_floating_point():
+        raise TypeError(f"{name} must be a floating-point tensor, got {z.dtype}")
+    if not torch.isfinite(z).all():
+        raise ValueError(f"{name} contains NaN or inf values")
+
+
+def check_weights(weights: Tensor, n: int) -> None:
+    """Refuse sample weights that are not a finite, non-negative (n,) tensor with a positive sum (a host read)."""
+    if not isinstance(weights, Tensor) or weights.shape != (n,):
+        shape = tuple(weights.shape) if isinstance(weights, Tensor) else type(weights).__name__
+        raise ValueError(f"weights must be a tensor of shape ({n},), got {shape}")
+    w = weights.detach()
+    if not torch.isfinite(w).all():
+        raise ValueError("weights contains NaN or inf values")
+    if (w < 0).any() or w.sum() <= 0:
+        raise ValueError("weights must be non-negative with a positive sum")
+
+
+def check_probs(feature_probs: Tensor | None, d: int) -> None:
+    """Refuse feature probabilities p(Z_i) that are not None or a (d,) distribution (a host read)."""
+    if feature_probs is None:
+        return
+    if not isinstance(feature_probs, Tensor) or feature_probs.shape != (d,):
+        shape = tuple(feature_probs.shape) if isinstance(feature_probs, Tensor) else type(feature_probs)
+        raise ValueError(f"feature_probs must be a tensor of shape ({d},), got {shape}")
+    p = feature_probs.detach().double()
+    if not torch.isfinite(p).all() or (p < 0).any() or abs(p.sum().item() - 1.0) > 1e-4:
+        raise ValueError("feature_probs must be finite, non-negative and sum to 1")
+
+
+def check_max_step(max_step: float | None, name: str = "max_step") -> None:
+    """Refuse a trust-region size (``learn_sample_weights``' ``max_step``) that is not None or a finite number
+    > 0, naming the argument ``name``."""
+    if max_step is None:
+        return
+    if isinstance(max_step, bool) or not isinstance(max_step, (int, float)) or not 0 < max_step < math.inf:
+        raise ValueError(f"{name} must be None or a finite number > 0, got {max_step!r}")
+
+
+def check_features(z: Tensor, name: str = "z", finite: bool = True) -> None:
+    """Shape and dtype of features; with ``finite``, their values too (a host read: not on SGFD's step)."""
+    if not isinstance(z, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(z).__name__}")
+    if z.dim() != 2 or z.shape[0] < 1 or z.shape[1] < 1:
+        raise ValueError(f"{name} must have shape (n, d) with n >= 1 and d >= 1, got {tuple(z.shape)}")
+    if not z.is_floating_point():
+        raise TypeError(f"{name} must be a floating-point tensor, got {z.dtype}")
+    if finite and not torch.isfinite(z).all():
+        raise ValueError(f"{name} contains NaN or inf values")
+
+
+def check_domains(domains: Tensor, n: int) -> None:
+    """Refuse domain labels that are not an integer (n,) tensor (their values are checked where they are used)."""
+    if not isinstance(domains, Tensor) or domains.shape != (n,):
+        shape = tuple(domains.shape) if isinstance(domains, Tensor) else type(domains).__name__
+        raise ValueError(f"domains must be a tensor of shape ({n},), got {shape}")
+    if domains.is_floating_point() or domains.is_complex() or domains.dtype == torch.bool:
+        raise TypeError(f"domains must be an integer tensor of domain labels, got {domains.dtype}")
+
+
+def check_probability_settings(temperature: float, smoothing: float) -> None:
+    """Refuse a saliency softmax temperature that is not a finite number > 0, or a smoothing outside [0, 1]."""
+    if isinstance(temperature, bool) or not isinstance(temperature, (int, float)) or not temperature > 0:
+        raise ValueError(f"temperature must be a number > 0, got {temperature!r}")
+    if not math.isfinite(temperature):
+        raise ValueError(f"temperature must be finite, got {temperature!r}")
+    if isinstance(smoothing, bool) or not isinstance(smoothing, (int, float)) or not 0 <= smoothing <= 1:
+        raise ValueError(f"smoothing must be a number in [0, 1], got {smoothing!r}")
+
+
+def check_tensor(x: object, name: str, dim: int | None = None) -> None:
+    """Refuse ``x`` unless it is a tensor, with ``dim`` dimensions where given."""
+    if not isinstance(x, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
+    if dim is not None and x.dim() != dim:
+        layout = "(n, C, H, W)" if dim == 4 else f"{dim} dimensions"
+        raise ValueError(f"{name} must have shape {layout}, got {tuple(x.shape)}")
+
+
+def check_frames(channels: int, channels_per_frame: int, name: str) -> None:
+    """Refuse a frame size that does not divide the ``channels`` of the stacked images ``name``."""
+    if isinstance(channels_per_frame, bool) or not isinstance(channels_per_frame, int) or channels_per_frame < 1:
+        raise ValueError(f"channels_per_frame must be an int >= 1, got {channels_per_frame!r}")
+    if channels % channels_per_frame != 0:
+        raise ValueError(
+            f"the {channels} channels of {name} are not divisible by channels_per_frame={channels_per_frame}"
+        )
+
+
+def positive_int(value: object, name: str) -> int:
+    """``value`` if it is an int >= 1; else refused, naming it ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+    return value

@@ -1,0 +1,312 @@
+"""SGFD_SAC: SAC, on any encoder objective of EncoderSAC, with its losses reweighted per sample by SGFD."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping
+from typing import Any
+
+import torch as th
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.sac.policies import SACPolicy
+
+from sb3_sgfd.common.buffers import DomainReplayBuffer, DomainReplayBufferSamples
+from sb3_sgfd.common.encoder_sac import EncoderSAC
+from sb3_sgfd.sgfd.official_reading import OfficialWeighting
+from sb3_sgfd.sgfd.paper_reading import PaperWeighting
+from sb3_sgfd.sgfd.settings import SGFDSettings, setting_names
+from sb3_sgfd.sgfd.weighting import SampleWeighting, Step
+
+#: The weighting of each reading (``SGFDSettings.reading``): the paper's text, and what the authors' code computes.
+WEIGHTINGS: dict[str, type[SampleWeighting]] = {"paper": PaperWeighting, "official": OfficialWeighting}
+
+_SINGLE_DOMAIN_WARNING = (
+    "SGFD_SAC sees a single domain, so there is nothing to decorrelate; it trains as plain SAC. Give it "
+    "one sub-env per domain, e.g. sgfd_envs.make_domain_vec_env(env_id, split='train')."
+)
+
+
+class SGFD_SAC(EncoderSAC):
+    """
+    Soft Actor-Critic with Saliency-Guided Features Decorrelation (SGFD).
+
+    At every gradient step the batch's encoder features z get sample weights w (mean 1, detached)
+    that decorrelate the features a domain classifier finds changing across environments from the
+    other features (random Fourier features, paper eqs. 3-7); w multiplies the per-sample critic and/or
+    actor losses. How the weights are computed is one of two readings (``reading``), each a
+    :class:`sb3_sgfd.sgfd.weighting.SampleWeighting`:
+
+    - ``"paper"`` (:class:`sb3_sgfd.sgfd.paper_reading.PaperWeighting`): Algorithm 1 as printed, with this
+      package's measured choices; the classifier trains from ``classifier_start`` while its accuracy is below
+      ``accuracy_threshold``, and the weights start the first time it reaches it (until then this is SAC);
+    - ``"official"`` (:class:`sb3_sgfd.sgfd.official_reading.OfficialWeighting`): what the authors' code
+      computes, which produced the published numbers: weights on the actor loss only from the first update, a
+      memory of past batches, guided-backprop saliency, and an objective that keeps the weights close to uniform.
+
+    SGFD's settings (``reading`` and every keyword from ``classifier_start`` to ``reweight_actor``) are gathered
+    in one :class:`sb3_sgfd.sgfd.settings.SGFDSettings`, ``model.sgfd``, which documents each. Each defaults to
+    ``None``: the reading's value (``SGFDSettings.paper()``, ``SGFDSettings.official()``); ``sgfd=`` gives
+    them as one object instead.
+
+    The weights combine with any encoder objective of :class:`sb3_sgfd.common.encoder_sac.EncoderSAC`:
+    ``representation="ambs"`` (with ``policy="AMBSPolicy"``, two augmented views, ``encoder_tau=0.05``,
+    ``max_grad_norm=40``) is the paper's agent, AMBS plus the reweighting (appendix B); without one the encoder
+    learns from the critic loss alone.
+
+    Takes the arguments of :class:`EncoderSAC` (SB3's SAC's, the encoder's and the objective's), plus:
+
+    :param reading: ``"paper"`` or ``"official"``
+    :param n_domains: Number of domain labels; ``None``: the envs' ``n_domains`` attribute or, if they have
+        none, the number of sub-envs
+    :param sgfd: All of SGFD's settings as one object (then none of the keywords below may be given)
+    :param classifier_start: and the keywords after it: :class:`sb3_sgfd.sgfd.settings.SGFDSettings`
+    """
+
+    def __init__(
+        self,
+        policy: str | type[SACPolicy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 1e-3,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 1000,
+        batch_size: int = 128,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        action_noise: ActionNoise | None = None,
+        replay_buffer_class: type[ReplayBuffer] | None = DomainReplayBuffer,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        optimize_memory_usage: bool = False,
+        ent_coef: str | float = "auto",
+        target_update_interval: int = 1,
+        target_entropy: str | float = "auto",
+        use_sde: bool = False,
+        sde_sample_freq: int = -1,
+        use_sde_at_warmup: bool = False,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        actor_update_interval: int = 2,
+        encoder_tau: float | None = None,
+        augmentation_views: int = 0,
+        augmentation_pad: int = 4,
+        max_grad_norm: float | None = None,
+        ent_coef_lr: float | None = None,
+        ent_coef_beta: float = 0.9,
+        representation: str | None = None,
+        representation_kwargs: dict[str, Any] | None = None,
+        actor_reuses_features: bool = True,
+        reading: str | None = None,
+        n_domains: int | None = None,
+        sgfd: SGFDSettings | None = None,
+        classifier_start: int | None = None,
+        classifier_iters: int | None = None,
+        classifier_interval: int | None = None,
+        accuracy_threshold: float | None = None,
+        classifier_hidden_dim: int | None = None,
+        classifier_lr: float | None = None,
+        n_rff: int | None = None,
+        reweight_iters: int | None = None,
+        reweight_lr: float | None = None,
+        reweight_momentum: float | None = None,
+        reweight_weight_decay: float | None = None,
+        reweight_ess_penalty: float | None = None,
+        reweight_memory: float | bool | None = None,
+        reweight_max_step: float | None = None,
+        saliency_temperature: float | None = None,
+        saliency_smoothing: float | None = None,
+        use_rff: bool | None = None,
+        use_saliency: bool | None = None,
+        reweight_critic: bool | None = None,
+        reweight_actor: bool | None = None,
+        _init_setup_model: bool = True,
+    ):
+        # SGFD's settings: the keywords of this signature that SGFDSettings holds, the reading's value where None
+        given = {name: value for name, value in locals().items() if name in SGFD_KEYWORDS}
+        if sgfd is not None:
+            if not isinstance(sgfd, SGFDSettings):
+                raise ValueError(f"sgfd must be an SGFDSettings, got {type(sgfd).__name__}")
+            clashing = sorted(name for name, value in given.items() if value is not None and name != "reading")
+            if clashing or reading not in (None, sgfd.reading):
+                raise ValueError(
+                    f"give SGFD's settings either as sgfd= or as keywords, not both: {clashing or 'reading'}"
+                )
+            self.sgfd = sgfd
+        else:
+            self.sgfd = SGFDSettings.of_reading(
+                reading or "paper", **{k: v for k, v in given.items() if k != "reading"}
+            )
+        if replay_buffer_class is None or not issubclass(replay_buffer_class, DomainReplayBuffer):
+            raise ValueError(
+                "replay_buffer_class must be DomainReplayBuffer or a subclass (SGFD needs the domain "
+                f"label of every transition), got {replay_buffer_class}"
+            )
+        self.n_domains = n_domains
+        self.single_domain = False
+        self._domains_checked = False
+        self.rff_seed: int | None = None
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            action_noise=action_noise,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            optimize_memory_usage=optimize_memory_usage,
+            ent_coef=ent_coef,
+            target_update_interval=target_update_interval,
+            target_entropy=target_entropy,
+            use_sde=use_sde,
+            sde_sample_freq=sde_sample_freq,
+            use_sde_at_warmup=use_sde_at_warmup,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            actor_update_interval=actor_update_interval,
+            encoder_tau=encoder_tau,
+            augmentation_views=augmentation_views,
+            augmentation_pad=augmentation_pad,
+            max_grad_norm=max_grad_norm,
+            ent_coef_lr=ent_coef_lr,
+            ent_coef_beta=ent_coef_beta,
+            representation=representation,
+            representation_kwargs=representation_kwargs,
+            actor_reuses_features=actor_reuses_features,
+            _init_setup_model=_init_setup_model,
+        )
+
+    @classmethod
+    def check_arguments(cls, arguments: Mapping[str, Any]) -> None:
+        """:meth:`EncoderSAC.check_arguments`, and SGFD's settings among ``arguments`` as :class:`SGFDSettings`
+        checks them (each refused in one line naming it)."""
+        super().check_arguments(arguments)
+        settings = {name: value for name, value in arguments.items() if name in SGFD_KEYWORDS and name != "reading"}
+        SGFDSettings.of_reading(arguments.get("reading") or "paper", **settings)
+
+    def _setup_model(self) -> None:
+        self._adopt_saved_settings()
+        if self.n_domains is None:
+            self.n_domains = self._domain_count() if self.env is not None else None
+        if self.n_domains is None or self.n_domains < 1:
+            raise ValueError(f"n_domains must be a positive integer, got {self.n_domains}")
+        super()._setup_model()
+        if self.n_domains == 1 and not self.single_domain:
+            warnings.warn(_SINGLE_DOMAIN_WARNING, stacklevel=2)
+            self.single_domain = True
+        # The RFF draw of update k is seeded from (rff_seed, k): reproducible, and the seed is all that
+        # a checkpoint needs to continue the same sequence.
+        if self.rff_seed is None:
+            self.rff_seed = self._derived_seeds()["reweighting"]
+        # A forked RNG: SGFD's additions must not shift the random streams SAC draws from, so that with
+        # w = 1 this is SAC to the last bit under the same seed.
+        with th.random.fork_rng(devices=[]):
+            self.weighting = WEIGHTINGS[self.sgfd.reading](
+                self.critic.features_extractor.features_dim,
+                self.n_domains,
+                self.sgfd,
+                seed=self.rff_seed,
+                device=self.device,
+            )
+
+    def _adopt_saved_settings(self) -> None:
+        """A model saved by version 0.1.0 holds SGFD's settings as attributes of their own: gather them into
+        ``self.sgfd`` (SB3's ``load`` puts a saved model's attributes back before it sets the model up)."""
+        saved = {name: self.__dict__.pop(name) for name in list(self.__dict__) if name in SGFD_KEYWORDS}
+        if saved:
+            self.sgfd = SGFDSettings.of_reading(saved.pop("reading", "paper"), **saved)
+
+    @property
+    def classifier(self) -> th.nn.Module:
+        """The weighting's domain classifier."""
+        return self.weighting.classifier
+
+    def _batch_weights(
+        self,
+        replay_data: DomainReplayBufferSamples,
+        z: th.Tensor,
+        batch_size: int,
+        update_index: int,
+        update_actor: bool,
+    ) -> tuple[th.Tensor | None, th.Tensor | None]:
+        """
+        The reading's weights of this batch (:class:`sb3_sgfd.sgfd.weighting.SampleWeighting`), as (n, 1) weights of
+        the critic and of the actor (None where that loss is not reweighted or the reading gives none; weights
+        for the actor alone are not computed on the steps it does not learn).
+        """
+        if self.single_domain or not self.weighting.active(self.num_timesteps):
+            return None, None
+        if not self._domains_checked:
+            # Once, when the weighting starts: stored_domains() reads the whole buffer.
+            self._domains_checked = True
+            if len(self.replay_buffer.stored_domains()) < 2:  # type: ignore[union-attr]
+                warnings.warn(_SINGLE_DOMAIN_WARNING, stacklevel=2)
+                self.single_domain = True
+                return None, None
+        weights_wanted = self.sgfd.reweight_critic or (self.sgfd.reweight_actor and update_actor)
+        step = Step(update_index, self.num_timesteps, weights_wanted, self._fresh_features)
+        weights, figures = self.weighting(z, self._checked_domains(replay_data.domains), step)
+        for key, value in figures.items():
+            self.record(f"sgfd/{key}", value)
+        if weights is None:
+            return None, None
+        weights = weights.reshape(-1, 1)
+        return (weights if self.sgfd.reweight_critic else None), (weights if self.sgfd.reweight_actor else None)
+
+    def sample_weights(
+        self, z: th.Tensor, generator: th.Generator | None = None
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """The reading's weights of features ``z`` with the classifier as it is now, leaving the weighting's
+        state (memory, classifier) as it is: for figures and benchmarks.
+
+        :param z: (n, d) encoder features
+        :param generator: seeds the random Fourier features
+        :return: weights (n,) with mean 1, the decorrelation loss at uniform weights and at the weights
+        """
+        return self.weighting.solve(z, generator)
+
+    def generators(self) -> dict[str, th.Generator]:
+        # the RFF generator is seeded anew at every update, but its state between updates is part of a resume too
+        return {**super().generators(), "weights": self.weighting.rff_generator}
+
+    def _fresh_features(self, n_samples: int, augmented: bool) -> tuple[th.Tensor, th.Tensor]:
+        """A fresh replay batch of ``n_samples``, encoded (of its first augmented view with ``augmented``), and
+        its domain labels: the classifier's extra batches."""
+        batch = self.replay_buffer.sample(n_samples, env=self._vec_normalize_env)  # type: ignore[union-attr]
+        observations = self.augment(batch.observations)[0] if augmented else batch.observations
+        return self.encode(observations), self._checked_domains(batch.domains)
+
+    def _domain_count(self) -> int:
+        return self.n_domains if self.n_domains is not None else super()._domain_count()
+
+    def _checked_domains(self, domains: th.Tensor | None) -> th.Tensor:
+        # Their values were checked where they entered (DomainReplayBuffer.add refuses a label >= n_domains).
+        if domains is None:
+            raise ValueError("SGFD_SAC needs replay samples with domain labels (use DomainReplayBuffer)")
+        return domains
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "weighting"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, saved_pytorch_variables = super()._get_torch_save_params()
+        return [*state_dicts, "weighting", "weighting.classifier_optimizer"], saved_pytorch_variables
+
+
+#: SGFD_SAC's keywords that are SGFD's settings (``reading`` and the fields of SGFDSettings)
+SGFD_KEYWORDS = frozenset(["reading", *setting_names()])
