@@ -109,7 +109,7 @@ def rl_zoo3_schedule_start(key: str, value: Any) -> Any:
             return float(start)
     except ValueError:
         pass
-    raise ZooError(f"{key}={value!r}: expected a number, or a schedule 'lin_<start>' (linear from <start> to 0)")
+    raise ZooError(f"{key} must be a number, or a schedule 'lin_<start>' (linear from <start> to 0), got {value!r}")
 
 
 def check_zoo_values(hyperparams: dict[str, Any], steps_given: bool) -> None:

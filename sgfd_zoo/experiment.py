@@ -175,8 +175,12 @@ class SGFDExperimentManager(ExperimentManager):
         # rl-zoo3 eval()s a string replay_buffer_class; a dotted path names a class to import instead.
         if isinstance(hyperparams.get("replay_buffer_class"), str) and "." in hyperparams["replay_buffer_class"]:
             hyperparams["replay_buffer_class"] = get_class_by_name(hyperparams["replay_buffer_class"])
+        # Keys first (a typo is named with what fits), then values; SGQN's overlay images are part of its values.
         check_algo_kwargs(self.algo, hyperparams)
+        check_policy_fits(self.algo, hyperparams, observes_pixels(self.env_kwargs))
+        check_nested_kwargs(self.algo, hyperparams)
         check_zoo_values(hyperparams, steps_given=self.n_timesteps > 0)
+        self._add_overlay_images(hyperparams)
         check_algorithm_values(ALGOS[self.algo], hyperparams)
         processed, env_wrapper, callbacks, vec_env_wrapper = super()._preprocess_hyperparams(hyperparams)
         self.eval_env_kwargs = {**self.env_kwargs, **(self._eval_env_kwargs_args or {})}
@@ -185,14 +189,11 @@ class SGFDExperimentManager(ExperimentManager):
         if not explicit_n_envs:
             with env_kwargs_checked(self.env_kwargs):
                 self.n_envs = sgfd_envs.n_domains(self.env_name.gym_id, "train", **self.env_kwargs)
-        check_policy_fits(self.algo, processed, observes_pixels(self.env_kwargs))
-        check_nested_kwargs(self.algo, processed)
         if not self.optimize_hyperparameters:
             save_freq = None if self.default_save_freq else self.save_freq
             eval_freq = None if self.default_eval_freq else self.eval_freq
             for warning in interval_warnings(self.n_timesteps, eval_freq, save_freq):
                 print(warning, file=sys.stderr)
-        self._add_overlay_images(processed)
         return processed, env_wrapper, callbacks, vec_env_wrapper
 
     def _add_overlay_images(self, hyperparams: dict[str, Any]) -> None:

@@ -518,10 +518,18 @@ def test_a_typo_inside_a_kwargs_hyperparameter_is_one_line_naming_the_key_and_th
 
 def test_a_configuration_that_does_not_build_is_one_line_and_leaves_no_run_folder(tmp_path: Path) -> None:
     argv = ["train", "--algo", "sac", "--env", ENV_ID, "--quick", "-f", str(tmp_path / "logs")]
-    code, _out, err = zoo([*argv, "-params", "train_freq:(1, 'stepz')"])  # SB3 refuses it when it builds
+    # A bad value is refused where it enters, before the run folder is claimed.
+    code, _out, err = zoo([*argv, "-params", "train_freq:(1, 'stepz')"])
+    assert code == 2 and len(err) == 1, err
+    assert err[0] == (
+        "sgfd-zoo train: error: train_freq must be an int >= 1 or (int >= 1, 'step' or 'episode'), got (1, 'stepz')"
+    )
+    assert not (tmp_path / "logs").exists()
+    # What only building finds (an activation that is not a module) fails there: the claimed folder goes again.
+    code, _out, err = zoo([*argv, "-params", "policy_kwargs:dict(activation_fn='relu')"])
     assert code == 2 and len(err) == 1, err
     assert err[0].startswith("sgfd-zoo train: error: sac on SGFD/MT-walker-walk-v0 cannot be built from this ")
-    assert "'stepz'" in err[0] and not (tmp_path / "logs").exists()
+    assert not (tmp_path / "logs").exists()
 
 
 def test_the_sweep_refuses_a_typo_once_at_planning_before_any_run(tmp_path: Path) -> None:
@@ -529,7 +537,7 @@ def test_the_sweep_refuses_a_typo_once_at_planning_before_any_run(tmp_path: Path
     code, _out, err = zoo([*argv, "-params", "replay_buffer_kwargs:dict(frame_stak=3)"])
     assert code == 2 and len(err) == 1 and "'frame_stak' (did you mean 'frame_stack'?)" in err[0]
     # What only building the model finds is found at planning too: the pre-check builds each configuration.
-    code, _out, err = zoo([*argv, "-params", "train_freq:(1, 'stepz')"])
+    code, _out, err = zoo([*argv, "-params", "policy_kwargs:dict(activation_fn='relu')"])
     assert code == 2 and len(err) == 1, err
     assert err[0].startswith("sgfd-zoo sweep: error: sac on SGFD/MT-walker-walk-v0 cannot be built from this ")
     assert not ray.is_initialized() and not list(tmp_path.iterdir())

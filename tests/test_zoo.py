@@ -106,8 +106,8 @@ def test_every_yaml_entry_builds_its_model(algo, quick, tmp_path):
         expected = SGFD_ALGOS[algo].algo_class
         assert type(model) is expected
         assert model.n_envs == sgfd_envs.n_domains(env_id, "train")
-        for key, value in SGFD_ALGOS[algo].overrides.items():
-            assert getattr(model, key) == value and saved[key] == value
+        for key, value in SGFD_ALGOS[algo].overrides.items():  # SGFD's settings (model.sgfd)
+            assert getattr(model.sgfd, key) == value and saved[key] == value
         if not quick:
             # The paper's setting: pixels, 3 stacked frames, frame-deduplicating buffer of 500k transitions.
             assert model.observation_space.shape == (9, 84, 84)
@@ -199,8 +199,17 @@ def test_table_renders_in_the_papers_layout():
         (["train", "--env", ENV_ID, *TINY, "--seed", "-5"], "--seed -5: expected 0..4294967295, or -1 for a random"),
         (
             ["train", "--env", ENV_ID, *TINY, "-params", "learning_rate:'fast'"],
-            "learning_rate='fast': expected a number, or a schedule 'lin_<start>'",
+            "learning_rate must be a number, or a schedule 'lin_<start>' (linear from <start> to 0), got 'fast'",
         ),
+        # the algorithms' own values, checked by sb3_sgfd (SAC's, SGFD's, the objectives') before anything is built
+        (["train", "--env", ENV_ID, *TINY, "-params", "batch_size:0"], "batch_size must be a positive integer, got 0"),
+        (["train", "--env", ENV_ID, *TINY, "-params", "buffer_size:-5"], "buffer_size must be a positive integer"),
+        (["train", "--env", ENV_ID, *TINY, "-params", "tau:2"], "tau must be a number in (0, 1], got 2"),
+        (
+            ["train", "--env", ENV_ID, *TINY, "-params", "reweight_ess_penalty:-1"],
+            "reweight_ess_penalty must be a finite number >= 0, got -1",
+        ),
+        (["train", "--env", ENV_ID, *TINY, "-params", "learning_rate:-0.1"], "learning_rate must be a number > 0"),
         (["train", "--env", ENV_ID, *TINY, "-params", "n_envs:0"], "n_envs=0: expected a whole number of sub-envs"),
         (["train", "--env", ENV_ID, "--quick", "-params", "n_timesteps:0"], "n_timesteps=0: expected a whole number"),
         (["train", "--env", ENV_ID, *TINY, "--eval-episodes", "0"], "--eval-episodes 0: expected at least 1"),
