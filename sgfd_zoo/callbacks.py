@@ -3,6 +3,7 @@ reports for the sweep's live view (checkpoints: :mod:`sgfd_zoo.checkpoint_callba
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 import zipfile
@@ -83,10 +84,11 @@ class MultiSplitEvalCallback(BaseCallback):
             history["timesteps"].append(self.num_timesteps)
             history["results"].append(rewards)
             history["ep_lengths"].append(lengths)
-            if self.log_path is not None:
-                self.log_path.mkdir(parents=True, exist_ok=True)
+            path = self._file(split)
+            if path is not None:
+                path.parent.mkdir(parents=True, exist_ok=True)
                 arrays = {key: np.array(value) for key, value in history.items()}
-                atomic_write(self._file(split), lambda tmp, arrays=arrays: np.savez(tmp, **arrays))
+                atomic_write(path, functools.partial(_save_arrays, arrays=arrays))
             means[split] = float(np.mean(rewards))
             self.logger.record(f"eval/{split}/mean_reward", means[split])
             self.logger.record(f"eval/{split}/std_reward", float(np.std(rewards)))
@@ -104,6 +106,10 @@ class MultiSplitEvalCallback(BaseCallback):
     def _on_training_end(self) -> None:
         for env in self.eval_envs.values():
             env.close()
+
+
+def _save_arrays(path: str, arrays: dict[str, Any]) -> None:
+    np.savez(path, **arrays)
 
 
 def _load_history(path: Path | None) -> dict[str, list]:
@@ -193,7 +199,12 @@ class ProgressCallback(BaseCallback):
         elapsed = now - started
         rate = (self.num_timesteps - start_steps) / elapsed if elapsed > 0 else 0.0
         returns = self.latest_returns() if self.latest_returns is not None else {}
-        report = {"steps": self.num_timesteps, "total": self.total_timesteps, "steps_per_second": rate, "done": done}
+        report: dict[str, Any] = {
+            "steps": self.num_timesteps,
+            "total": self.total_timesteps,
+            "steps_per_second": rate,
+            "done": done,
+        }
         if returns:
             report["returns"] = returns
         try:

@@ -11,10 +11,11 @@ import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sgfd_zoo import training_state
@@ -74,14 +75,14 @@ CHECKPOINT_PARTS: tuple[CheckpointPart, ...] = (
     CheckpointPart(
         "replay_buffer",
         ".pkl",
-        save=lambda model, path: model.save_replay_buffer(path),
-        restore=lambda model, path: model.load_replay_buffer(path),
+        save=lambda model, path: cast(OffPolicyAlgorithm, model).save_replay_buffer(path),
+        restore=lambda model, path: cast(OffPolicyAlgorithm, model).load_replay_buffer(path),
         applies=_has_replay_buffer,
     ),
     CheckpointPart(
         "vecnormalize",
         ".pkl",
-        save=lambda model, path: model.get_vec_normalize_env().save(path),
+        save=lambda model, path: cast(VecNormalize, model.get_vec_normalize_env()).save(path),
         restore=_restore_vec_normalize,
         applies=lambda model: model.get_vec_normalize_env() is not None,
     ),

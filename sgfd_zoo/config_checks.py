@@ -8,6 +8,7 @@ import contextlib
 import difflib
 import inspect
 from collections.abc import Iterator
+from collections.abc import Set as AbstractSet
 from typing import Any
 
 import rl_zoo3.exp_manager
@@ -179,7 +180,7 @@ def constructor_arguments(algo_class: type) -> set[str]:
     for cls in algo_class.__mro__:
         if "__init__" not in vars(cls):
             continue
-        parameters = inspect.signature(cls.__init__).parameters
+        parameters = inspect.signature(vars(cls)["__init__"]).parameters
         names |= {name for name, p in parameters.items() if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}
         if not any(p.kind == p.VAR_KEYWORD for p in parameters.values()):
             break
@@ -240,7 +241,7 @@ def default_extractor(policy_class: type | None) -> type | None:
         return None
     if hasattr(policy_class, "default_features_extractor_class"):
         return policy_class.default_features_extractor_class
-    default = inspect.signature(policy_class.__init__).parameters.get("features_extractor_class")
+    default = inspect.signature(policy_class).parameters.get("features_extractor_class")
     return default.default if default is not None and isinstance(default.default, type) else None
 
 
@@ -262,7 +263,9 @@ def kwargs_value(key: str, value: Any) -> dict[str, Any] | None:
     return value
 
 
-def keyword_arguments(cls: type, filled: set[str] = frozenset(), follow_var_keyword: bool = True) -> set[str] | None:
+def keyword_arguments(
+    cls: type, filled: AbstractSet[str] = frozenset(), follow_var_keyword: bool = True
+) -> set[str] | None:
     """The keyword arguments a user may give ``cls`` (less those its caller ``filled`` itself), following
     ``**kwargs`` up the base classes (SB3's policies hand theirs to their base); None when ``cls`` takes
     ``**kwargs`` it does not hand up (``follow_var_keyword=False``), so that its keys cannot be known.
@@ -272,7 +275,7 @@ def keyword_arguments(cls: type, filled: set[str] = frozenset(), follow_var_keyw
     :param follow_var_keyword: follow ``**kwargs`` up the MRO
     """
     if not follow_var_keyword:
-        parameters = inspect.signature(cls.__init__).parameters
+        parameters = inspect.signature(cls).parameters
         if any(p.kind == p.VAR_KEYWORD for p in parameters.values()):
             return None
     return constructor_arguments(cls) - filled - {"self"}
@@ -282,7 +285,7 @@ def default_argument(cls: type, name: str) -> Any:
     """The default of ``cls``'s constructor argument ``name``, from the first class of its MRO that has it."""
     for base in cls.__mro__:
         if "__init__" in vars(base):
-            parameter = inspect.signature(base.__init__).parameters.get(name)
+            parameter = inspect.signature(vars(base)["__init__"]).parameters.get(name)
             if parameter is not None:
                 return parameter.default
     return None
@@ -303,10 +306,10 @@ def check_nested_kwargs(algo: str, hyperparams: dict[str, Any]) -> None:
         check_keywords(f"policy_kwargs of {algo} ({policy_class.__name__})", policy_kwargs, valid)
     extractor = policy_kwargs.get("features_extractor_class") or default_extractor(policy_class)
     if isinstance(extractor, type) and policy_kwargs.get("features_extractor_kwargs"):
-        valid = keyword_arguments(extractor, {"observation_space"}, follow_var_keyword=False)
-        if valid is not None:  # one that hands **kwargs on (AMBSEncoder to its trunk) is checked when built
+        taken = keyword_arguments(extractor, {"observation_space"}, follow_var_keyword=False)
+        if taken is not None:  # one that hands **kwargs on (AMBSEncoder to its trunk) is checked when built
             where = f"features_extractor_kwargs of {algo} ({extractor.__name__})"
-            check_keywords(where, policy_kwargs["features_extractor_kwargs"], valid)
+            check_keywords(where, policy_kwargs["features_extractor_kwargs"], taken)
     representation = hyperparams.get("representation", getattr(algo_class, "fixed_representation", None))
     if hyperparams.get("representation_kwargs") and representation in REPRESENTATIONS:
         representation_class = REPRESENTATIONS[representation]

@@ -10,7 +10,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import yaml
 from gymnasium import spaces
@@ -221,7 +221,7 @@ class SGFDExperimentManager(ExperimentManager):
                 split=split,
                 n_envs=n_envs,
                 seed=self.seed + (10_000 if eval_env else 0),
-                vec_env_cls=self.vec_env_class,
+                vec_env_cls=cast(type[VecEnv], self.vec_env_class),
                 **env_kwargs,
             )
         return wrap_like_training(env, self.frame_stack, self._maybe_normalize if self.normalize else None, eval_env)

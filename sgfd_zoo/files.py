@@ -113,7 +113,7 @@ def temporary_path(path: Path) -> Path:
     return path.with_name(f"{TMP_PREFIX}{host}-{os.getpid()}-{secrets.token_hex(4)}-{path.name}")
 
 
-def atomic_write(path: Path, write: Callable[[str], None]) -> StoredFile:
+def atomic_write(path: Path, write: Callable[[str], object]) -> StoredFile:
     """Write ``path`` whole or not at all: ``write(tmp)`` writes a temporary file beside it
     (:func:`temporary_path`), which is fsync'd, checked (:func:`content_problem`), renamed over ``path``, and the
     folder fsync'd. On any failure the temporary file is removed; an OSError or a failed check raises

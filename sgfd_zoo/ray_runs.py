@@ -275,7 +275,10 @@ def start_ray(args: argparse.Namespace) -> None:
     import ray
 
     # Each run's output is in its log file; Ray's own warnings (token authentication, ...) only when asked for.
-    quiet = {"log_to_driver": False, "logging_level": logging.WARNING if args.ray_logs else logging.ERROR}
+    quiet: dict[str, Any] = {
+        "log_to_driver": False,
+        "logging_level": logging.WARNING if args.ray_logs else logging.ERROR,
+    }
     if args.address is not None:
         _connect(args.address, quiet, args.ray_logs)
         cpus, gpus = ray.cluster_resources().get("CPU", 0), ray.cluster_resources().get("GPU", 0)
@@ -310,7 +313,7 @@ def _connect(address: str, quiet: dict[str, Any], show_ray_output: bool) -> None
     if "RAY_AUTH_MODE" not in os.environ and _token_available():
         os.environ["RAY_AUTH_MODE"] = "token"  # as `ray start` does when it finds a token
         with contextlib.suppress(ImportError):  # Ray reads its config once: make it read the mode again
-            from ray._raylet import Config
+            from ray._raylet import Config  # type: ignore[attr-defined]
 
             Config.initialize("")
     with tempfile.TemporaryFile("w+") as captured:

@@ -102,10 +102,10 @@ class RunRecord(NamedRun):
         self.final_evaluation.unlink(missing_ok=True)
         atomic_write(self.source_file, lambda tmp: Path(tmp).write_text(f"{run.path.resolve()}\n"))
         for npz in sorted(run.path.glob("evaluations_*.npz")):
-            atomic_write(self.path / npz.name, lambda tmp, npz=npz: shutil.copyfile(npz, tmp))
+            atomic_write(self.path / npz.name, functools.partial(shutil.copyfile, npz))
         for name in ("config.yml", "args.yml", run.versions_file.name):
             if (run.config_dir / name).exists():
-                atomic_write(self.path / name, lambda tmp, name=name: shutil.copyfile(run.config_dir / name, tmp))
+                atomic_write(self.path / name, functools.partial(shutil.copyfile, run.config_dir / name))
         atomic_write(self.diagnostics, lambda tmp: diagnostics(Path(tmp)))
 
         def write_rows(tmp: str) -> None:

@@ -202,7 +202,7 @@ class RunFolder(NamedRun):
 
     def usable_checkpoint(self) -> tuple[Checkpoint | None, list[str]]:
         """The newest checkpoint whose files match their size and sha256, and why each newer one is unusable."""
-        problems = []
+        problems: list[str] = []
         for checkpoint in self.checkpoints():
             problem = checkpoint.problem(self.path)
             if problem is None:
@@ -261,6 +261,7 @@ class RunFolder(NamedRun):
 
     def load_model(self, device: str = "cpu") -> BaseAlgorithm:
         """The final model, without allocating its replay buffer."""
+        algo_class: type[BaseAlgorithm]
         if self.algo in SGFD_ALGOS:
             algo_class = SGFD_ALGOS[self.algo].algo_class
         else:  # a run rl-zoo3 itself trained into the folder

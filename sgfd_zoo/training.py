@@ -185,7 +185,7 @@ def enjoy(argv: Sequence[str]) -> int:
     argv = list(argv)
     if not (has_flag(argv, "-f") or has_flag(argv, "--folder")):
         argv += ["-f", "logs"]
-    folder = flag_value(argv, "-f") or flag_value(argv, "--folder")
+    folder = flag_value(argv, "-f") or flag_value(argv, "--folder") or "logs"
     algo, env_id = flag_value(argv, "--algo"), flag_value(argv, "--env")
     chosen = ("--exp-id", "--load-best", "--load-checkpoint", "--load-last-checkpoint")
     if algo is not None and env_id is not None and not any(has_flag(argv, flag) for flag in chosen):
