@@ -312,7 +312,7 @@ def _connect(address: str, quiet: dict[str, Any], show_ray_output: bool) -> None
     _check_reachable(address)
     if "RAY_AUTH_MODE" not in os.environ and _token_available():
         os.environ["RAY_AUTH_MODE"] = "token"  # as `ray start` does when it finds a token
-        with contextlib.suppress(ImportError):  # Ray reads its config once: make it read the mode again
+        with contextlib.suppress(ImportError, AttributeError):  # Ray reads its config once: read the mode again
             from ray._raylet import Config  # type: ignore[attr-defined]
 
             Config.initialize("")
