@@ -1,26 +1,31 @@
-"""Env steps per second at 84x84: sgfd_envs against the prior practice, measured in one run.
+"""Env steps per second at 84x84, at equal pixels: each benchmark's own way of making its frames against our id
+with the same render settings (dm_control's defaults: shadows, reflections, 4x multisampling), side by side in
+one run, and our fast path (``render="fast"``: none of the three) beside them.
 
-Prior practice (DBC/AMBS's dmc2gym): dm_control's ``physics.render(84, 84, camera_id=0)`` with its
-default flags (shadows, reflections, 4x multisampling; a new Camera every call), then the colour
-rule (blue > green and blue > red) to paste the background frame. Ours: one reused scene, shadows,
-reflections and multisampling off, colour and depth read in one pass, depth mask. Both use the same
-physics, action repeat and background frames; the methods run in interleaved rounds so machine load
-hits both alike, and each figure is the median over rounds.
+Each row steps the same task at the benchmark's action repeat with random actions. The methods of a row run in
+interleaved rounds, so machine load hits them alike; each figure is the median over rounds. The benchmarks'
+methods are re-implemented from their code's description, on procedural frames of their data's sizes:
 
-Each benchmark id is measured against its own benchmark's method, re-implemented from its description on the
-same physics and the same procedural frames:
+- undistracted: a loop of ``dm_env.step`` and ``physics.render(84, 84, camera_id=0)`` (DMC-GB, DMC-GB2, DCS and
+  dmc2gym all render so); ours is ``gym.make(id)``.
+- SGFD background ids, DBC's and AMBS's dmc2gym: ``physics.render``, then the colour rule (blue > green and
+  blue > red) pastes the background frame. Not the same pixels as ours (the rule keeps the skybox's stars and
+  replaces bluish robot parts; ours puts the frame behind by coverage): the row compares the cost.
+- DMC-GB ``video_hard``: the sky and floor textures green, ``physics.render``, the whole clip frame (video_hard's
+  are 352 x 352, 500 frames) scaled to 84x84 by torch's bilinear interpolate, and the per-pixel HSV loop in Python
+  (DMC-GB's ``do_green_screen``, "not optimized for speed").
+- DMC-GB2 ``video_hard``: the next frame, resized (Pillow, bicubic) to 256 x 256 when the episode's clip is
+  loaded, written into the screen texture and sent to the GPU every agent step, the screen moved with the torso,
+  ``physics.render``.
+- DCS ``hard`` dynamic (google-research): every simulator step the sky texture (800 x 800) written and sent to
+  the GPU, the camera pose and every material's colour written; ``physics.render`` once per agent step.
+- DMC-GB ``distracting_cs`` (0.5): as DCS, but the walks move every second simulator step, and dm_control's pixel
+  wrapper inside DMC-GB's dmc2gym renders after every simulator step besides dmc2gym's own render per agent step.
 
-- DMC-GB ``video_hard``: the sky and floor painted green ([.2, .8, .2]), dm_control's default render, then a
-  per-pixel Python loop converting each pixel to HSV and replacing those with hue 100-185 degrees, saturation
-  80-255 and value 70-255 by the video frame resized (bilinear) to the observation (DMC-GB's
-  ``do_green_screen``, "not optimized for speed").
-- DMC-GB2 ``video_hard``: the video frame written into the screen's 256x256 cube texture and sent to the GPU
-  every agent step, the screen moved with the torso, the floor invisible, dm_control's default render.
-- DCS ``hard``, dynamic: every simulator step the background frame (pre-resized to the 800x800 sky texture)
-  sent to the GPU, the camera pose and every material colour written into the model; dm_control's default
-  render once per agent step.
+That ours and theirs make the same pixels on the same state (all rows but the background one) is tested in
+``tests/test_benchmarks_pixels.py``; this script measures the cost.
 
-Usage: ``python bench/env_throughput.py [--steps 300] [--rounds 3] [--env SGFD/walker-walk-v0]``
+Usage: ``python bench/env_throughput.py [--steps 40] [--rounds 3]``
 """
 
 from __future__ import annotations
@@ -36,64 +41,68 @@ import cv2
 import gymnasium as gym
 import mujoco
 import numpy as np
+import torch
+import torch.nn.functional as F
+from PIL import Image
 
-import sgfd_envs
 from sgfd_envs import domains
-from sgfd_envs.backgrounds import ProceduralBackground, composite, make_background
+from sgfd_envs.backgrounds import ProceduralBackground, make_background
 from sgfd_envs.benchmarks import dcs, dmcgb, dmcgb2
 from sgfd_envs.benchmarks.scene import TextureSlot, object_id, rgb_attribute, suite_texture_data
 from sgfd_envs.registry import task_entry
 
 IMAGE_SIZE = 84
+Stepper = Callable[[], np.ndarray]
 
 
-def gym_stepper(env: gym.Env, seed: int) -> Callable[[], None]:
-    """One agent step of a gymnasium env with a random action, resetting at episode ends."""
+def gym_stepper(env_id: str, seed: int = 0, **kwargs) -> Stepper:
+    """One agent step of our id with a random action, resetting at episode ends; returns the observation."""
+    env = gym.make(env_id, **kwargs)
     env.reset(seed=seed)
     env.action_space.seed(seed)
 
-    def step() -> None:
-        *_, terminated, truncated, _ = env.step(env.action_space.sample())
+    def step() -> np.ndarray:
+        observation, _, terminated, truncated, _ = env.step(env.action_space.sample())
         if terminated or truncated:
             env.reset()
+        return observation
 
     return step
 
 
-def prior_practice_stepper(env_id: str, seed: int) -> Callable[[], None]:
-    """One agent step the DBC way: repeat the action, render with default flags, colour-rule composite."""
-    entry = task_entry(env_id)
-    dm_env = domains.load(entry.robot, entry.task)
-    background = make_background("train", 0, IMAGE_SIZE, IMAGE_SIZE)
-    rng = np.random.default_rng(seed)
-    action_spec = dm_env.action_spec()
-    state = {"control_steps": 0, "frame": 0}
+class Loop:
+    """A dm_control task stepped the benchmarks' way: random actions, ``repeat`` simulator steps per agent step,
+    ``on_control_step`` after each, a reset every 1000 simulator steps."""
 
-    def reset() -> None:
+    def __init__(self, dm_env, repeat: int, seed: int, on_control_step: Callable[[], None] | None = None) -> None:
+        self.dm_env, self.repeat = dm_env, repeat
+        self.physics = dm_env.physics
+        self._rng = np.random.default_rng(seed)
+        spec = dm_env.action_spec()
+        self._low, self._high = spec.minimum, spec.maximum
+        self._on_control_step = on_control_step
+        self.control_steps = 0
+        self.agent_steps = 0
+        self.reset_hooks: list[Callable[[], None]] = []
+        dm_env.task.random.seed(seed)
         dm_env.reset()
-        state["control_steps"] = 0
-        state["frame"] = int(rng.integers(background.n_frames))
 
-    def step() -> None:
-        action = rng.uniform(action_spec.minimum, action_spec.maximum)
-        for _ in range(entry.action_repeat):
-            dm_env.step(action)
-            state["control_steps"] += 1
-        rendered = dm_env.physics.render(IMAGE_SIZE, IMAGE_SIZE, camera_id=0)
-        red, green, blue = (rendered[..., channel].astype(np.int16) for channel in range(3))
-        composite(rendered, (blue > green) & (blue > red), background.frame(state["frame"]))
-        state["frame"] += 1
-        if state["control_steps"] >= 1000:
-            reset()
+    def step(self) -> None:
+        action = self._rng.uniform(self._low, self._high)
+        for _ in range(self.repeat):
+            self.dm_env.step(action)
+            self.control_steps += 1
+            if self._on_control_step is not None:
+                self._on_control_step()
+        self.agent_steps += 1
+        if self.control_steps >= 1000:
+            self.dm_env.reset()
+            self.control_steps = self.agent_steps = 0
+            for hook in self.reset_hooks:
+                hook()
 
-    reset()
-    return step
-
-
-def _random_actions(dm_env, seed: int) -> Callable[[], np.ndarray]:
-    rng = np.random.default_rng(seed)
-    spec = dm_env.action_spec()
-    return lambda: rng.uniform(spec.minimum, spec.maximum)
+    def render(self) -> np.ndarray:
+        return self.physics.render(IMAGE_SIZE, IMAGE_SIZE, camera_id=0)
 
 
 def _upload(physics, texture_id: int) -> None:
@@ -101,130 +110,114 @@ def _upload(physics, texture_id: int) -> None:
         ctx.call(mujoco.mjr_uploadTexture, physics.model.ptr, physics.contexts.mujoco.ptr, texture_id)
 
 
-# DMC-GB's green screen: the colour it paints the sky and floor, and the HSV box it keys out.
-_GREEN = (0.2, 0.8, 0.2)
-_HSV_LOW, _HSV_HIGH = (100, 80, 70), (185, 255, 255)
+def plain_render_stepper(domain: str, task: str, repeat: int) -> Stepper:
+    loop = Loop(domains.load_suite(domain, task), repeat, seed=0)
+
+    def step() -> np.ndarray:
+        loop.step()
+        return loop.render()
+
+    return step
+
+
+def colour_rule_stepper(env_id: str) -> Stepper:
+    """DBC's dmc2gym: default render, the blue rule pastes the background."""
+    entry = task_entry(env_id)
+    loop = Loop(domains.load(entry.robot, entry.task), entry.action_repeat, seed=0)
+    background = make_background("train", 0, IMAGE_SIZE, IMAGE_SIZE)
+
+    def step() -> np.ndarray:
+        loop.step()
+        rendered = loop.render()
+        red, green, blue = (rendered[..., c].astype(np.int16) for c in range(3))
+        mask = (blue > green) & (blue > red)
+        return np.where(mask[..., np.newaxis], background.frame(loop.agent_steps), rendered)
+
+    return step
 
 
 def _green_screen_per_pixel(rendered: np.ndarray, background: np.ndarray) -> np.ndarray:
-    """DMC-GB's keying as it describes it: every pixel to HSV in Python, the green ones replaced."""
     out = rendered.copy()
-    height, width = rendered.shape[:2]
-    for row in range(height):
-        for col in range(width):
-            r, g, b = rendered[row, col]
-            h, s, v = colorsys.rgb_to_hsv(r / 255.0, g / 255.0, b / 255.0)
-            h, s, v = h * 360, s * 255, v * 255
-            if (
-                _HSV_LOW[0] <= h <= _HSV_HIGH[0]
-                and _HSV_LOW[1] <= s <= _HSV_HIGH[1]
-                and _HSV_LOW[2] <= v <= _HSV_HIGH[2]
-            ):
+    for row in range(rendered.shape[0]):
+        for col in range(rendered.shape[1]):
+            red, green, blue = (int(c) / 255.0 for c in rendered[row, col])
+            hue, saturation, value = colorsys.rgb_to_hsv(red, green, blue)
+            if 100 <= hue * 360 <= 185 and 80 <= saturation * 255 <= 255 and 70 <= value * 255 <= 255:
                 out[row, col] = background[row, col]
     return out
 
 
-def dmcgb_video_stepper(domain: str, task: str, seed: int) -> Callable[[], None]:
-    """One agent step of DMC-GB's video_hard the DMC-GB way (see the module docstring)."""
-    dm_env = domains.load_suite(domain, task)
-    physics = dm_env.physics
-    green = rgb_attribute(_GREEN)
+def dmcgb_video_stepper(domain: str, task: str) -> Stepper:
+    """DMC-GB's video_hard (see the module docstring)."""
+    loop = Loop(domains.load_suite(domain, task), dmcgb.TASKS[(domain, task)], seed=0)
+    green = rgb_attribute(dmcgb.GREEN_SCREEN_RGB)
+    physics = loop.physics
     sky, grid = TextureSlot(physics, "skybox"), TextureSlot(physics, "grid")
     sky.write(suite_texture_data("skybox", rgb1=green, rgb2=green, markrgb=green))
     grid.write(suite_texture_data("grid", rgb1=green, rgb2=green, markrgb=green))
-    physics.render(IMAGE_SIZE, IMAGE_SIZE, camera_id=0)  # makes the context the textures go to
+    loop.render()
     _upload(physics, sky.texture_id)
     _upload(physics, grid.texture_id)
-    repeat = dmcgb.TASKS[(domain, task)]
-    clip = ProceduralBackground(3100, 352, 352, n_frames=500)  # a video_hard clip's size and length
-    action = _random_actions(dm_env, seed)
-    state = {"control_steps": 0, "frame": 0}
+    clip = ProceduralBackground(3100, 352, 352, n_frames=500)
 
-    def step() -> None:
-        command = action()
-        for _ in range(repeat):
-            dm_env.step(command)
-            state["control_steps"] += 1
-        rendered = physics.render(IMAGE_SIZE, IMAGE_SIZE, camera_id=0)
-        frame = cv2.resize(clip.frame(state["frame"]), (IMAGE_SIZE, IMAGE_SIZE), interpolation=cv2.INTER_LINEAR)
-        _green_screen_per_pixel(rendered, frame)
-        state["frame"] += 1
-        if state["control_steps"] >= 1000:
-            dm_env.reset()
-            state.update(control_steps=0, frame=0)
+    def step() -> np.ndarray:
+        loop.step()
+        rendered = loop.render()
+        frame = torch.from_numpy(clip.frame(loop.agent_steps)).permute(2, 0, 1).float().unsqueeze(0) / 255.0
+        frame = F.interpolate(frame, size=(IMAGE_SIZE, IMAGE_SIZE), mode="bilinear", align_corners=False)
+        frame = (frame * 255.0).byte().squeeze(0).permute(1, 2, 0).numpy()
+        return _green_screen_per_pixel(rendered, frame)
 
-    dm_env.reset()
     return step
 
 
-def dmcgb2_video_stepper(domain: str, task: str, seed: int) -> Callable[[], None]:
-    """One agent step of DMC-GB2's video_hard the DMC-GB2 way (see the module docstring)."""
+def dmcgb2_video_stepper(domain: str, task: str) -> Stepper:
+    """DMC-GB2's video_hard (see the module docstring)."""
     side = dmcgb2.PROJECTOR_TEXTURE_SIDE
-    dm_env = dmcgb2.load_with_projector(domain, task, side)
-    physics = dm_env.physics
+    loop = Loop(dmcgb2.load_with_projector(domain, task, side), dmcgb2.TASKS[(domain, task)], seed=0)
+    physics = loop.physics
     screen = TextureSlot(physics, "video_screen")
     site = object_id(physics, mujoco.mjtObj.mjOBJ_SITE, "video_screen")
     torso = object_id(physics, mujoco.mjtObj.mjOBJ_BODY, "torso")
     follow = dmcgb2.PROJECTOR_FOLLOWS.get(domain)
     physics.model.mat_rgba[object_id(physics, mujoco.mjtObj.mjOBJ_MATERIAL, "grid"), 3] = 0.0
-    clip = ProceduralBackground(3101, side, side, n_frames=500)
-    action = _random_actions(dm_env, seed)
-    repeat = dmcgb2.TASKS[(domain, task)]
-    physics.render(IMAGE_SIZE, IMAGE_SIZE, camera_id=0)
-    state = {"control_steps": 0, "frame": 0}
+    source = ProceduralBackground(3101, 352, 352, n_frames=500)
+    # Resized when the clip is loaded at the episode's start (outside the timed steps here).
+    frames = [np.asarray(Image.fromarray(source.frame(t)).resize((side, side), Image.BICUBIC)) for t in range(500)]
+    loop.render()
 
-    def step() -> None:
-        command = action()
-        for _ in range(repeat):
-            dm_env.step(command)
-            state["control_steps"] += 1
-        screen.write(clip.frame(state["frame"]), (side, side))
+    def step() -> np.ndarray:
+        loop.step()
+        screen.write(frames[loop.agent_steps % len(frames)], (side, side))
         _upload(physics, screen.texture_id)
         if follow is not None:
             physics.data.site_xpos[site, 0] = physics.data.subtree_com[torso, 0] + follow[0]
             physics.data.site_xpos[site, 2] = physics.data.subtree_com[torso, 2] + follow[1]
-        physics.render(IMAGE_SIZE, IMAGE_SIZE, camera_id=0)
-        state["frame"] += 1
-        if state["control_steps"] >= 1000:
-            dm_env.reset()
-            state.update(control_steps=0, frame=0)
+        return loop.render()
 
-    dm_env.reset()
     return step
 
 
-def dcs_stepper(domain: str, task: str, seed: int) -> Callable[[], None]:
-    """One agent step of DCS hard, dynamic, the DCS way (see the module docstring)."""
+def dcs_stepper(domain: str, task: str, repeat: int, scale: float, every: int, renders_each_step: bool) -> Stepper:
+    """The Distracting Control Suite's way (google-research: ``every`` 1; DMC-GB's distracting_cs: 2, and a render
+    after every simulator step by dm_control's pixel wrapper inside dmc2gym)."""
     dm_env = domains.load_suite(domain, task)
     physics = dm_env.physics
     side = dcs.SKY_TEXTURE_SIDE
     sky = TextureSlot(physics, "skybox")
-    scale = dcs.DIFFICULTY_SCALE["hard"]
-    physics.model.mat_rgba[object_id(physics, mujoco.mjtObj.mjOBJ_MATERIAL, "grid"), 3] = dcs.GROUND_ALPHA.get(
-        domain, dcs.DEFAULT_GROUND_ALPHA
-    )
-    # DCS resizes every frame of the episode's video to the sky texture at reset.
+    alpha = dcs.GROUND_ALPHA.get(domain, dcs.DEFAULT_GROUND_ALPHA)
+    physics.model.mat_rgba[object_id(physics, mujoco.mjtObj.mjOBJ_MATERIAL, "grid"), 3] = alpha
+    # DCS resizes every frame of the episode's video to the sky texture when the episode starts (untimed here).
     source = ProceduralBackground(4000, 120, 214, n_frames=70)
     frames = [cv2.resize(source.frame(t), (side, side), interpolation=cv2.INTER_LINEAR) for t in range(70)]
     camera = dcs.CameraWalk(physics, 0, scale, dynamic=True, upper_quadrant=domain != "reacher")
     colour = dcs.ColourWalk(physics, scale, dynamic=True)
-    rng = np.random.default_rng(seed)
-    action = _random_actions(dm_env, seed)
-    repeat = dcs.TASKS[(domain, task)]
-    physics.render(IMAGE_SIZE, IMAGE_SIZE, camera_id=0)
-    state = {"control_steps": 0, "index": 0, "direction": 1}
+    rng = np.random.default_rng(0)
+    state = {"steps": 0, "index": 0, "direction": 1}
 
-    def reset() -> None:
-        dm_env.reset()
-        camera.start(rng)
-        colour.start(rng)
-        state.update(control_steps=0, index=int(rng.integers(len(frames))), direction=1)
-
-    def step() -> None:
-        command = action()
-        for _ in range(repeat):
-            dm_env.step(command)
-            state["control_steps"] += 1
+    def control_step() -> None:
+        state["steps"] += 1
+        if state["steps"] % every == 0:
             index = state["index"] + state["direction"]
             if index <= 0 or index >= len(frames) - 1:
                 state["direction"] *= -1
@@ -232,97 +225,106 @@ def dcs_stepper(domain: str, task: str, seed: int) -> Callable[[], None]:
             sky.write(frames[state["index"]], (side, side))
             _upload(physics, sky.texture_id)
             camera.advance(rng)
-            position, orientation = camera.pose()
-            physics.data.cam_xpos[0], physics.data.cam_xmat[0] = position, orientation.reshape(-1)
             colour.advance(rng)
-        physics.render(IMAGE_SIZE, IMAGE_SIZE, camera_id=0)
-        if state["control_steps"] >= 1000:
-            reset()
+        position, orientation = camera.pose()
+        physics.data.cam_xpos[0], physics.data.cam_xmat[0] = position, orientation.reshape(-1)
+        if renders_each_step:
+            physics.render(IMAGE_SIZE, IMAGE_SIZE, camera_id=0)
 
-    reset()
+    loop = Loop(dm_env, repeat, seed=0, on_control_step=control_step)
+
+    def start() -> None:
+        camera.start(rng)
+        colour.start(rng)
+        state.update(steps=0, index=int(rng.integers(len(frames))), direction=1)
+
+    loop.reset_hooks.append(start)
+    loop.render()
+    start()
+
+    def step() -> np.ndarray:
+        loop.step()
+        return loop.render()
+
     return step
 
 
-def steps_per_second(step: Callable[[], None], n_steps: int) -> float:
-    """Agent steps per second over ``n_steps`` calls."""
+def steps_per_second(step: Stepper, n_steps: int) -> float:
     start = time.perf_counter()
     for _ in range(n_steps):
         step()
     return n_steps / (time.perf_counter() - start)
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Measure and print steps/s of each method and the speed-up."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", default="SGFD/walker-walk-v0", help="background id to compare")
-    parser.add_argument("--mt-env", default="SGFD/MT-walker-walk-v0", help="MT id measured alongside")
-    parser.add_argument("--steps", type=int, default=300, help="agent steps per method per round")
-    parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument(
-        "--benchmark-steps", type=int, default=100, help="agent steps per round of each benchmark row (theirs are slow)"
-    )
-    parser.add_argument("--warmup", type=int, default=20, help="untimed agent steps of each method first")
-    args = parser.parse_args(argv)
-    if task_entry(args.env).variation != "background":
-        parser.error(f"--env must be a background id, one of {[i for i in sgfd_envs.SGFD_IDS if '/MT-' not in i]}")
-
-    methods = {
-        f"ours   {args.env} (pixels, procedural background)": gym_stepper(gym.make(args.env), seed=0),
-        f"prior  {args.env} (default render + colour rule)": prior_practice_stepper(args.env, seed=0),
-        f"ours   {args.mt_env} (pixels)": gym_stepper(gym.make(args.mt_env), seed=0),
-    }
-    for step in methods.values():  # warm-up: contexts, caches, background textures
-        for _ in range(args.warmup):
+def measure(methods: dict[str, Stepper], steps: int, rounds: int, warmup: int) -> dict[str, float]:
+    """Median steps/s of each method over interleaved rounds."""
+    for step in methods.values():
+        for _ in range(warmup):
             step()
     rates: dict[str, list[float]] = {name: [] for name in methods}
-    for _ in range(args.rounds):
+    for _ in range(rounds):
         for name, step in methods.items():
-            rates[name].append(steps_per_second(step, args.steps))
+            rates[name].append(steps_per_second(step, steps))
+    return {name: statistics.median(values) for name, values in rates.items()}
 
+
+def rows() -> dict[str, dict[str, Callable[[], Stepper]]]:
+    """Per row: its methods (ours, theirs, fast) as factories, made when the row runs."""
+    return {
+        "undistracted walker-walk (DMCGB2 train / physics.render)": {
+            "ours": lambda: gym_stepper("DMCGB2/walker-walk-v0"),
+            "theirs": lambda: plain_render_stepper("walker", "walk", 2),
+            "fast": lambda: gym_stepper("DMCGB2/walker-walk-v0", render="fast"),
+        },
+        "SGFD walker-walk background / DBC colour rule": {
+            "ours": lambda: gym_stepper("SGFD/walker-walk-v0"),
+            "theirs": lambda: colour_rule_stepper("SGFD/walker-walk-v0"),
+            "fast": lambda: gym_stepper("SGFD/walker-walk-v0", render="fast"),
+        },
+        "DMC-GB walker-walk video_hard": {
+            "ours": lambda: gym_stepper("DMCGB/walker-walk-v0", split="video_hard"),
+            "theirs": lambda: dmcgb_video_stepper("walker", "walk"),
+            "fast": lambda: gym_stepper("DMCGB/walker-walk-v0", split="video_hard", render="fast"),
+        },
+        "DMC-GB2 walker-walk video_hard": {
+            "ours": lambda: gym_stepper("DMCGB2/walker-walk-v0", split="video_hard"),
+            "theirs": lambda: dmcgb2_video_stepper("walker", "walk"),
+            "fast": lambda: gym_stepper("DMCGB2/walker-walk-v0", split="video_hard", render="fast"),
+        },
+        "DCS walker-walk hard, dynamic": {
+            "ours": lambda: gym_stepper("DCS/walker-walk-v0", split="hard", dynamic=True),
+            "theirs": lambda: dcs_stepper("walker", "walk", 2, 0.3, every=1, renders_each_step=False),
+            "fast": lambda: gym_stepper("DCS/walker-walk-v0", split="hard", dynamic=True, render="fast"),
+        },
+        "DMC-GB walker-walk distracting_cs 0.5": {
+            "ours": lambda: gym_stepper("DMCGB/walker-walk-v0", split="distracting_cs", intensity=0.5),
+            "theirs": lambda: dcs_stepper("walker", "walk", 4, 0.5, every=2, renders_each_step=True),
+            "fast": lambda: gym_stepper("DMCGB/walker-walk-v0", split="distracting_cs", intensity=0.5, render="fast"),
+        },
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Measure and print steps/s of each method of each row and our speed-ups."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=40, help="agent steps per method per round")
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--warmup", type=int, default=5, help="untimed agent steps of each method first")
+    parser.add_argument("--only", nargs="+", help="rows whose name contains one of these words")
+    args = parser.parse_args(argv)
     print(
         f"MUJOCO_GL={os.environ.get('MUJOCO_GL')}, {os.cpu_count()} CPUs, {IMAGE_SIZE}x{IMAGE_SIZE}, "
-        f"{args.steps} agent steps x {args.rounds} interleaved rounds, median"
+        f"{args.steps} agent steps x {args.rounds} interleaved rounds, median steps/s (ms per agent step)"
     )
-    medians = {name: statistics.median(values) for name, values in rates.items()}
-    for name, median in medians.items():
-        print(f"  {name:<62} {median:8.1f} steps/s  ({1000 / median:6.2f} ms/step)")
-    ours, prior = list(medians.values())[:2]
-    print(f"  speed-up of ours over the prior practice: {ours / prior:.1f}x (goal >= 3x)")
-
-    # Each benchmark against its own method, walker-walk (in all three), interleaved rounds as above.
-    pairs = {
-        "DMC-GB video_hard": (
-            gym_stepper(gym.make("DMCGB/walker-walk-v0", split="video_hard"), seed=0),
-            dmcgb_video_stepper("walker", "walk", seed=0),
-        ),
-        "DMC-GB2 video_hard": (
-            gym_stepper(gym.make("DMCGB2/walker-walk-v0", split="video_hard"), seed=0),
-            dmcgb2_video_stepper("walker", "walk", seed=0),
-        ),
-        "DCS hard, dynamic": (
-            gym_stepper(gym.make("DCS/walker-walk-v0", split="hard", dynamic=True), seed=0),
-            dcs_stepper("walker", "walk", seed=0),
-        ),
-    }
-    for ours_step, theirs_step in pairs.values():
-        for step in (ours_step, theirs_step):
-            for _ in range(min(5, args.warmup)):
-                step()
-    pair_rates: dict[str, tuple[list[float], list[float]]] = {name: ([], []) for name in pairs}
-    for _ in range(args.rounds):
-        for name, (ours_step, theirs_step) in pairs.items():
-            pair_rates[name][0].append(steps_per_second(ours_step, args.benchmark_steps))
-            pair_rates[name][1].append(steps_per_second(theirs_step, args.benchmark_steps))
-    print(
-        f"benchmark ids (walker-walk, each at its benchmark's action repeat) against their own method, "
-        f"{args.benchmark_steps} agent steps x {args.rounds} interleaved rounds, median"
-    )
-    for name, (ours_rates, theirs_rates) in pair_rates.items():
-        ours_median, theirs_median = statistics.median(ours_rates), statistics.median(theirs_rates)
-        print(
-            f"  {name:<20} ours {ours_median:7.1f} steps/s ({1000 / ours_median:6.2f} ms)   theirs "
-            f"{theirs_median:7.1f} steps/s ({1000 / theirs_median:6.2f} ms)   {ours_median / theirs_median:5.1f}x"
-        )
+    torch.set_num_threads(1)
+    for name, factories in rows().items():
+        if args.only and not any(word in name for word in args.only):
+            continue
+        medians = measure({k: make() for k, make in factories.items()}, args.steps, args.rounds, args.warmup)
+        cells = "   ".join(f"{k} {v:7.1f} ({1000 / v:6.1f} ms)" for k, v in medians.items())
+        ratio = medians["ours"] / medians["theirs"]
+        fast = medians["fast"] / medians["theirs"]
+        print(f"  {name:<56} {cells}   ours/theirs {ratio:5.2f}x   fast/theirs {fast:5.2f}x")
 
 
 if __name__ == "__main__":

@@ -59,7 +59,8 @@ IMAGE_SIZE = [84]  # --image-size (the paper's 84; smaller only for a smoke run)
 
 
 def pixel_env() -> VecEnv:
-    env = sgfd_envs.make_domain_vec_env("SGFD/walker-walk-v0", image_size=IMAGE_SIZE[0])
+    # The fast render: this bench times gradient steps on the batches it collects, not the render.
+    env = sgfd_envs.make_domain_vec_env("SGFD/walker-walk-v0", image_size=IMAGE_SIZE[0], render="fast")
     return VecTransposeImage(VecFrameStack(env, 3))
 
 

@@ -8,9 +8,16 @@ from pathlib import Path
 
 from sb3_sgfd import _legacy
 from sb3_sgfd.ambs import AMBS, AMBSPolicy
-from sb3_sgfd.common.buffers import DomainReplayBuffer, DomainReplayBufferSamples
+from sb3_sgfd.common.buffers import DomainDictReplayBuffer, DomainReplayBuffer, DomainReplayBufferSamples
 from sb3_sgfd.common.encoder_sac import EncoderSAC
-from sb3_sgfd.common.policies import CnnPolicy, EncoderMlpPolicy, MlpPolicy, PixelEncoder, SGFDPolicy
+from sb3_sgfd.common.policies import (
+    CnnPolicy,
+    EncoderMlpPolicy,
+    MlpPolicy,
+    MultiInputPolicy,
+    PixelEncoder,
+    SGFDPolicy,
+)
 from sb3_sgfd.dbc import DBC
 from sb3_sgfd.sgfd import SGFD_SAC, SGFDSettings
 from sb3_sgfd.sgqn import SGQN
@@ -28,11 +35,13 @@ __all__ = [
     "TED",
     "AMBSPolicy",
     "CnnPolicy",
+    "DomainDictReplayBuffer",
     "DomainReplayBuffer",
     "DomainReplayBufferSamples",
     "EncoderMlpPolicy",
     "EncoderSAC",
     "MlpPolicy",
+    "MultiInputPolicy",
     "PixelEncoder",
     "SGFDPolicy",
     "SGFDSettings",

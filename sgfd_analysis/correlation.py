@@ -22,7 +22,7 @@ import json
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -218,9 +218,9 @@ def collect_states(
     return StateSample(np.concatenate(rows), np.concatenate(labels), [*chosen, parameter], len(chosen))
 
 
-def _select_columns(names: list[str], features: list[str] | None, n_state_features: int) -> list[int]:
+def _select_columns(names: list[str], features: list[str] | None, n_state_features: int | None) -> list[int]:
     if features is None:
-        if not 1 <= n_state_features <= len(names):
+        if n_state_features is None or not 1 <= n_state_features <= len(names):
             raise ZooError(f"--n-state-features must be in 1..{len(names)} for this env, got {n_state_features}")
         return list(range(n_state_features))
     unknown = [name for name in features if name not in names]
@@ -308,7 +308,7 @@ def correlation_study(sample: StateSample, batch_size: int = DEFAULT_BATCH_SIZE,
         # The same RFF draw for both weightings: they differ only in the feature probabilities.
         for key, feature_probs in (("global", None), ("sgfd", probs)):
             rff.manual_seed(seed * 1_000_003 + index)
-            weights[key] = learn_sample_weights(z, feature_probs, generator=rff)
+            weights[key] = cast(torch.Tensor, learn_sample_weights(z, feature_probs, generator=rff))  # no losses
         for key in WEIGHTINGS:
             abs_corr[key].append(weighted_pearson(z, weights[key]).abs().numpy())
             ess[key].append(effective_sample_size(weights[key]) / batch_size)
@@ -345,7 +345,6 @@ def plot_correlation(result: StudyResult, path: Path, title: str) -> Path:
     fig = Figure(figsize=(3 * size + 1.2, size + 1.4), layout="constrained")
     axes = fig.subplots(1, 3)
     ticks = labels(result.names)
-    image = None
     for ax, key in zip(axes, WEIGHTINGS, strict=True):
         matrix = result.matrices[key]
         image = ax.imshow(matrix, vmin=0.0, vmax=1.0, cmap="Blues")

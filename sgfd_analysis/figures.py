@@ -16,6 +16,7 @@ import json
 import math
 import textwrap
 from collections import defaultdict
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,7 @@ from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global fig
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.preprocessing import is_image_space, preprocess_obs
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
+from stable_baselines3.sac import SAC
 
 import sgfd_envs
 from sb3_sgfd.sgfd.decorrelation import effective_sample_size
@@ -66,7 +68,7 @@ def domain_env(run: RunFolder, split: str, domains: list[int], seed: int) -> Vec
     def factory(domain: int) -> gym.Env:
         return gym.make(run.env_id, split=split, domain=domain, **run.env_kwargs)
 
-    env = DummyVecEnv([lambda domain=domain: factory(domain) for domain in domains])
+    env = DummyVecEnv([partial(factory, domain) for domain in domains])
     env.seed(seed)
     return wrap_like_training(env, run.frame_stack)
 
@@ -86,7 +88,7 @@ def rollout(model: BaseAlgorithm, env: VecEnv, steps: list[int], deterministic: 
         if step in steps:
             kept.append(np.array(obs))
         if step < max(steps):
-            action, _ = model.predict(obs, deterministic=deterministic)
+            action, _ = model.predict(obs, deterministic=deterministic)  # type: ignore[arg-type]  # as SB3's evaluate_policy
             obs, _, _, _ = env.step(action)
     return np.stack(kept)
 
@@ -99,7 +101,7 @@ def newest_frame(observation: np.ndarray) -> np.ndarray:
 # --- saliency maps ---------------------------------------------------------------------------------------
 
 
-def action_saliency(model: BaseAlgorithm, observations: np.ndarray) -> np.ndarray:
+def action_saliency(model: SAC, observations: np.ndarray) -> np.ndarray:
     """|d action / d pixel|: per pixel, the sum over action dimensions and channels of the absolute gradient
     of the deterministic action tanh(mu(s)) with respect to the raw pixel values.
 
@@ -177,6 +179,8 @@ def saliency_maps_main(argv: list[str]) -> int:
     run = select_run(args.folder, args.env, args.algo, args.exp_id)
     model = run.load_model()
     require_pixels(model, run, "saliency-maps")
+    if not isinstance(model, SAC):
+        raise ZooError(f"saliency-maps needs a SAC-family agent (the actor's mean action); {run.path} holds {run.algo}")
     rows = saliency_rows(run, args.max_domains)
     frames, maps, observations = [], [], []
     for split in dict.fromkeys(split for split, _ in rows):

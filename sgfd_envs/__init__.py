@@ -32,12 +32,14 @@ from sgfd_envs.registry import (
     CAUSAL_WORLD_IDS,
     ENV_IDS,
     SGFD_IDS,
-    make_domain_vec_env,
+    evaluation_modes,
     n_domains,
     register_envs,
     splits,
+    stand_in,
     test_splits,
 )
+from sgfd_envs.vec_env import make_domain_vec_env
 
 register_envs()
 
@@ -46,8 +48,10 @@ __all__ = [
     "CAUSAL_WORLD_IDS",
     "ENV_IDS",
     "SGFD_IDS",
+    "evaluation_modes",
     "make_domain_vec_env",
     "n_domains",
     "splits",
+    "stand_in",
     "test_splits",
 ]

@@ -47,14 +47,19 @@ class BackgroundSource(Protocol):
         ...
 
 
-def composite(rendered: np.ndarray, background_mask: np.ndarray, background: np.ndarray) -> np.ndarray:
-    """Put ``background`` where ``background_mask`` is set; every other pixel stays as rendered.
+def composite(rendered: np.ndarray, coverage: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """Put ``background`` behind a render of the scene with its backdrop hidden: ``rendered + (1 - coverage) *
+    background``, as drawing the background behind the scene would blend it into the scene's edges. Where the
+    scene covers a pixel whole it stays as rendered; where nothing was drawn it is the background's.
 
-    :param rendered: uint8 (H, W, 3) render of the robot with no floor and no skybox
-    :param background_mask: bool (H, W), True where nothing was drawn
+    :param rendered: uint8 (H, W, 3) render with no floor and no skybox (colour weighted by coverage, as OpenGL's
+        multisample resolve leaves it)
+    :param coverage: uint8 (H, W) share of each pixel the scene covers, 0..255 (the render's alpha)
     :param background: uint8 (H, W, 3) background frame
     """
-    return np.where(background_mask[..., np.newaxis], background, rendered)
+    uncovered = (255 - coverage.astype(np.uint16))[..., np.newaxis]
+    blended = rendered + (uncovered * background + 127) // 255
+    return np.minimum(blended, 255).astype(np.uint8)
 
 
 def fit_frame(frame_bgr: np.ndarray, height: int, width: int, grayscale: bool) -> np.ndarray:

@@ -1,9 +1,9 @@
-"""A dm_control task as a gymnasium env: action repeat, pixels or state, fast headless rendering.
+"""A dm_control task as a gymnasium env: action repeat, pixels or state, headless rendering.
 
-Rendering reuses one MuJoCo scene per env with shadows, reflections and multisampling off. With a
-background source the floor (every plane geom) and the skybox are hidden too, and colour and depth
-are read back in the same pass: background pixels are exactly those where the depth buffer kept its
-cleared value, and every robot pixel stays as MuJoCo drew it.
+Rendering (:mod:`sgfd_envs.rendering`) reuses one MuJoCo scene per env and draws what dm_control's
+``physics.render`` draws (``render="benchmark"``, the default) or the same without shadows, reflections and
+multisampling (``render="fast"``). With a background source the floor (every plane geom) and the skybox are
+hidden, and the background goes behind the scene by the pass's coverage (:func:`~sgfd_envs.backgrounds.composite`).
 
 The benchmark ids (:mod:`sgfd_envs.benchmarks`) pass a :class:`Distraction` instead: it changes what is
 drawn (materials, textures, the camera's pose for one render) and never the physics.
@@ -11,22 +11,20 @@ drawn (materials, textures, the camera's pose for one render) and never the phys
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
 import gymnasium as gym
 import mujoco
 import numpy as np
-from dm_control.mujoco import Physics, wrapper
+from dm_control.mujoco import Physics
 from dm_control.rl import control
 from gymnasium import spaces
 
 from sgfd_envs.backgrounds import BackgroundSource, composite
+from sgfd_envs.rendering import HIDE_MODES, CameraRenderer, check_render, configure_offscreen_buffer
 
 OBS_TYPES = ("pixels", "state")
-# OpenGL clears the depth buffer to the far plane, 1.0; no drawn geom reaches it.
-_CLEARED_DEPTH = 1.0
 
 
 def check_image_size(image_size: int) -> int:
@@ -58,116 +56,6 @@ class DomainLabel:
     setting: int | None = None
     morphology_parameter: str | None = None
     morphology_value: float | None = None
-
-
-def configure_offscreen_buffer(physics: Physics, size: int) -> None:
-    """Set the offscreen buffer up for :class:`CameraRenderer`; call it before anything renders.
-
-    Without multisampling, edge pixels are either robot or cleared, never a blend of the two: the
-    depth mask is exact and rendering is ~3x faster (measured on llvmpipe). The buffer grows to fit
-    ``size`` if needed.
-
-    :param physics: the dm_control physics, whose rendering context must not exist yet
-    :param size: image height and width in pixels
-    """
-    visual = physics.model.vis
-    visual.quality.offsamples = 0
-    visual.global_.offwidth = max(visual.global_.offwidth, size)
-    visual.global_.offheight = max(visual.global_.offheight, size)
-
-
-class CameraRenderer:
-    """Renders one fixed camera of a Physics into reused buffers.
-
-    :param physics: the dm_control physics, set up by :func:`configure_offscreen_buffer`
-    :param size: image height and width in pixels
-    :param camera_id: index of a camera defined in the model
-    :param hide_backdrop: hide plane geoms and the skybox and report their pixels as background
-    :param hide_sky: hide only the skybox and report its pixels as background (the floor stays)
-    """
-
-    # MuJoCo draws geom groups 0..5; moving the planes to the last one lets one option hide them.
-    _HIDDEN_GROUP = mujoco.mjNGROUP - 1
-
-    def __init__(
-        self, physics: Physics, size: int, camera_id: int, hide_backdrop: bool, hide_sky: bool = False
-    ) -> None:
-        model = physics.model
-        if not 0 <= camera_id < model.ncam:
-            raise ValueError(f"camera_id must be in 0..{model.ncam - 1} for this model, got {camera_id!r}")
-        self._physics = physics
-        self.camera_id = camera_id
-        self._hide_backdrop = hide_backdrop
-        self._scene = wrapper.MjvScene(model=model)
-        self._option = wrapper.MjvOption()
-        self._perturb = wrapper.MjvPerturb()
-        self._camera = wrapper.MjvCamera()
-        self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
-        self._camera.fixedcamid = camera_id
-        self._scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
-        self._scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
-        if hide_backdrop:
-            planes = model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE
-            if np.any(model.geom_group[~planes] == self._HIDDEN_GROUP):
-                raise RuntimeError(f"geom group {self._HIDDEN_GROUP} is in use; cannot hide the floor with it")
-            model.geom_group[planes] = self._HIDDEN_GROUP
-            self._option.geomgroup[self._HIDDEN_GROUP] = 0
-            self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
-        if hide_sky:
-            self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
-        self._rect = mujoco.MjrRect(0, 0, size, size)
-        self._rgb = np.empty((size, size, 3), dtype=np.uint8)
-        self._depth = np.empty((size, size), dtype=np.float32) if hide_backdrop or hide_sky else None
-        contexts = physics.contexts
-        with contexts.gl.make_current() as ctx:
-            ctx.call(mujoco.mjr_setBuffer, mujoco.mjtFramebuffer.mjFB_OFFSCREEN, contexts.mujoco.ptr)
-
-    def _draw_and_read(self) -> None:
-        context = self._physics.contexts.mujoco.ptr
-        mujoco.mjr_render(self._rect, self._scene.ptr, context)
-        mujoco.mjr_readPixels(self._rgb, self._depth, self._rect, context)
-
-    def upload_texture(self, texture_id: int) -> None:
-        """Send texture ``texture_id`` of the model (after its ``tex_data`` or size changed) to the GPU."""
-        contexts = self._physics.contexts
-        with contexts.gl.make_current() as ctx:
-            ctx.call(mujoco.mjr_uploadTexture, self._physics.model.ptr, contexts.mujoco.ptr, texture_id)
-
-    def render(
-        self, overrides: Sequence[tuple[np.ndarray, int, np.ndarray]] = ()
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        """Render the current state.
-
-        :param overrides: ``(array, row, value)`` triples of ``physics.data`` arrays (a camera's
-            ``cam_xpos``/``cam_xmat``, a site's ``site_xpos``) set for this render only and restored after it,
-            so a moved camera changes the view and never the simulation
-        :return: a new uint8 (H, W, 3) RGB image, top row first, and with ``hide_backdrop`` or
-            ``hide_sky`` the bool (H, W) mask of background pixels (else None)
-        """
-        physics = self._physics
-        saved = [(array, row, array[row].copy()) for array, row, _ in overrides]
-        try:
-            for array, row, value in overrides:
-                array[row] = value
-            mujoco.mjv_updateScene(
-                physics.model.ptr,
-                physics.data.ptr,
-                self._option.ptr,
-                self._perturb.ptr,
-                self._camera.ptr,
-                mujoco.mjtCatBit.mjCAT_ALL,
-                self._scene.ptr,
-            )
-        finally:
-            for array, row, value in saved:
-                array[row] = value
-        with physics.contexts.gl.make_current() as ctx:
-            ctx.call(self._draw_and_read)
-        # OpenGL's first row is the bottom of the image.
-        rgb = self._rgb[::-1].copy()
-        if self._depth is None:
-            return rgb, None
-        return rgb, self._depth[::-1] == _CLEARED_DEPTH
 
 
 class Distraction(Protocol):
@@ -203,7 +91,6 @@ class Distraction(Protocol):
         ...
 
 
-HIDE_MODES = ("nothing", "sky", "backdrop")
 # Offset of the distraction's seed stream: reset(seed=s) seeds the physics from s and the distraction from
 # (s, this), so a seed gives the same physics in every split.
 DISTRACTION_SEED_STREAM = 0x5EED
@@ -232,6 +119,10 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
     :param render_mode: None or ``"rgb_array"`` (``render()`` returns the current frame)
     :param distraction: a benchmark's visual distraction (instead of ``background``); its generator is
         seeded from ``(seed, DISTRACTION_SEED_STREAM)`` at ``reset(seed=seed)``
+    :param render: ``"benchmark"`` (dm_control's ``physics.render`` with the model's shadows, reflections and
+        multisampling) or ``"fast"`` (none of the three; see :mod:`sgfd_envs.rendering`)
+    :param stand_in: what the env shows in place of a benchmark's data (e.g. ``"procedural clips for data_dir"``),
+        None when it shows the data itself; ``info["stand_in"]`` says whether there is one
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 25}
@@ -248,6 +139,8 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         camera_id: int = 0,
         render_mode: str | None = None,
         distraction: Distraction | None = None,
+        render: str = "benchmark",
+        stand_in: str | None = None,
     ) -> None:
         if background is not None and distraction is not None:
             raise ValueError("give either background= or distraction=, not both")
@@ -256,6 +149,7 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         if obs_type not in OBS_TYPES:
             raise ValueError(f"obs_type must be one of {OBS_TYPES}, got {obs_type!r}")
         check_image_size(image_size)
+        check_render(render)
         if isinstance(action_repeat, bool) or not isinstance(action_repeat, int) or action_repeat < 1:
             raise ValueError(f"action_repeat must be a positive int, got {action_repeat!r}")
         if render_mode not in (None, *self.metadata["render_modes"]):
@@ -270,7 +164,9 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         self._distraction = distraction
         self._distraction_rng: np.random.Generator | None = None
         self._camera_id = camera_id
-        configure_offscreen_buffer(dm_env.physics, self.image_size)
+        self.render_setting = render
+        self.stand_in = stand_in
+        configure_offscreen_buffer(dm_env.physics, self.image_size, render)
         # Made on first render, so state-only envs never open an OpenGL context.
         self._renderer: CameraRenderer | None = None
         self.metadata = {**self.metadata, "render_fps": round(1 / (dm_env.control_timestep() * action_repeat))}
@@ -334,8 +230,8 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         """The dm_control physics (read it; changing it mid-episode breaks reproducibility)."""
         return self._dm_env.physics
 
-    def _info(self) -> dict[str, int]:
-        info = {"domain": self.label.domain}
+    def _info(self) -> dict[str, Any]:
+        info: dict[str, Any] = {"domain": self.label.domain, "stand_in": self.stand_in is not None}
         if self.label.setting is not None:
             info["setting"] = self.label.setting
         return info
@@ -345,21 +241,19 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
     def _frame(self) -> np.ndarray:
         if self._renderer is None:
             hide = self._distraction.hide if self._distraction is not None else "nothing"
+            if self._background is not None:
+                hide = "backdrop"
             self._renderer = CameraRenderer(
-                self._dm_env.physics,
-                self.image_size,
-                self._camera_id,
-                hide_backdrop=self._background is not None or hide == "backdrop",
-                hide_sky=hide == "sky",
+                self._dm_env.physics, self.image_size, self._camera_id, hide=hide, render=self.render_setting
             )
         if self._distraction is not None:
             return self._distraction.render(self._renderer, self._agent_steps)
-        rgb, background_mask = self._renderer.render()
+        rgb, coverage = self._renderer.render()
         if self._background is None:
             return rgb
         start = int(self._background_phase * self._background.n_frames)
         index = start + self._agent_steps
-        return composite(rgb, background_mask, self._background.frame(index))
+        return composite(rgb, coverage, self._background.frame(index))
 
     def _observation(self, dm_observation: dict[str, np.ndarray]) -> np.ndarray:
         if self.obs_type == "state":
@@ -372,7 +266,7 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, int]]:
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         """Start an episode; ``seed`` seeds the initial state and the background start (a distraction
         from a stream of its own).
 
@@ -393,7 +287,7 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
             self._distraction.start_episode(self._distraction_rng, reseeded)
         return self._observation(time_step.observation), self._info()
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, int]]:
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         """Apply ``action`` for ``action_repeat`` dm_control steps (fewer if the episode terminates).
 
         :param action: float array in the action space

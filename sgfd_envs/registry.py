@@ -1,36 +1,17 @@
-"""The table of every id (SGFD's and the benchmarks'), their splits and domains, and their registration with
-gymnasium."""
+"""The table of every id (SGFD's and the benchmarks'), their splits, domains and evaluation modes, what stands in
+for a benchmark's data, and their registration with gymnasium (:mod:`sgfd_envs.builders` builds the envs)."""
 
 from __future__ import annotations
 
-import functools
-import inspect
 import math
-from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium as gym
 
-from sgfd_envs import domains
-from sgfd_envs.backgrounds import (
-    BACKGROUND_SPLITS,
-    DEFAULT_FRAME_BUDGET,
-    check_background_split,
-    make_background,
-    n_background_domains,
-)
+from sgfd_envs.backgrounds import BACKGROUND_SPLITS, n_background_domains
 from sgfd_envs.benchmarks import BENCHMARKS, dcs, dmcgb, dmcgb2
-from sgfd_envs.benchmarks.media import check_data_dir, davis_folder
-from sgfd_envs.causal_world import CausalWorldEnv, make_causal_world_env
-from sgfd_envs.dmc import DMCEnv, DomainLabel, check_image_size
-from sgfd_envs.morphology import MORPHOLOGY_SPLITS, SETTINGS, check_domain, select_setting, split_settings_of
-from sgfd_envs.state import ResumableState
-from sgfd_envs.wrappers import ObserveParameter, check_observe_parameter, scale_to_unit
-
-if TYPE_CHECKING:
-    from stable_baselines3.common.vec_env import VecEnv
+from sgfd_envs.morphology import MORPHOLOGY_SPLITS, split_settings_of
 
 BACKGROUND = "background"
 MORPHOLOGY = "morphology"
@@ -49,6 +30,9 @@ SPLITS: dict[str, tuple[str, ...]] = {
     DMCGB2: dmcgb2.MODES,
     DCS: dcs.SPLITS,
 }
+# Splits that take a parameter (``intensity=``), so not in SPLITS (whose splits every periodic evaluation plays):
+# DMC-GB's distracting_cs, which DMC-GB2 tests on too. evaluation_modes() lists them once per value.
+PARAMETRIC_SPLITS: dict[str, tuple[str, ...]] = {DMCGB: (dmcgb.DISTRACTING_CS,), DMCGB2: (dmcgb.DISTRACTING_CS,)}
 
 
 @dataclass(frozen=True)
@@ -130,7 +114,8 @@ def benchmark_of(env_id: str) -> str | None:
     return variation if variation in BENCHMARK_KINDS else None
 
 
-def _entry_of_kind(env_id: str, variation: str) -> TaskEntry:
+def entry_of_kind(env_id: str, variation: str) -> TaskEntry:
+    """The table row of an id of one kind, or a ValueError listing the ids of that kind."""
     entry = task_entry(env_id)
     if entry.variation != variation:
         same_kind = tuple(i for i, e in TASKS.items() if e.variation == variation)
@@ -139,7 +124,8 @@ def _entry_of_kind(env_id: str, variation: str) -> TaskEntry:
 
 
 def splits(env_id: str) -> tuple[str, ...]:
-    """Split names of an id, training split first (for a benchmark id: ``"train"``, then its test modes).
+    """Split names of an id, training split first (for a benchmark id: ``"train"``, then its test modes; a split
+    taking a parameter, ``distracting_cs``, is in :data:`PARAMETRIC_SPLITS` and :func:`evaluation_modes` instead).
 
     :param env_id: one of :data:`ENV_IDS`
     """
@@ -156,7 +142,7 @@ def test_splits(env_id: str) -> tuple[str, ...]:
 
 def check_benchmark_split(env_id: str, split: str) -> str:
     """Return ``split`` if it is a split of the benchmark id ``env_id``, else raise naming the allowed ones."""
-    allowed = splits(env_id)
+    allowed = splits(env_id) + PARAMETRIC_SPLITS.get(task_entry(env_id).variation, ())
     if split not in allowed:
         raise ValueError(f"split must be one of {allowed} for {benchmark_of(env_id)} ids, got {split!r}")
     return split
@@ -179,278 +165,45 @@ def n_domains(env_id: str, split: str = "train", **env_kwargs) -> int:
     return len(split_settings_of(split, env_kwargs.get("split_settings")))
 
 
-def make_background_env(
-    env_id: str,
-    split: str = "train",
-    domain: int = 0,
-    *,
-    background_dir: str | Path | None = None,
-    frame_budget: int = DEFAULT_FRAME_BUDGET,
-    grayscale: bool = False,
-    obs_type: str = "pixels",
-    image_size: int = 84,
-    render_mode: str | None = None,
-) -> DMCEnv:
-    """A distracting-background env (entry point of the background ids).
+def evaluation_modes(env_id: str) -> tuple[tuple[str, dict[str, Any]], ...]:
+    """What ``sgfd-zoo evaluate`` tests a model on: ``(label, kwargs)`` per split, the label the split's name and
+    the kwargs its ``split=`` (and more): DMC-GB's and DMC-GB2's ``distracting_cs`` once per intensity, labelled
+    ``distracting_cs_<intensity>``, as DMC-GB2 reports it.
 
-    :param env_id: a background id of :data:`SGFD_IDS`
-    :param split: ``"train"`` or ``"test"`` (test sources never appear in training)
-    :param domain: index of the background source within the split
-    :param background_dir: folder of videos/images (see :mod:`sgfd_envs.backgrounds`), None for the
-        built-in procedural backgrounds
-    :param frame_budget: most frames per background source (DBC: 1000)
-    :param grayscale: grey backgrounds, as DBC's Kinetics setting
-    :param obs_type: ``"pixels"`` or ``"state"``
-    :param image_size: height and width of the pixel observation
-    :param render_mode: None or ``"rgb_array"``
+    :param env_id: one of :data:`ENV_IDS`
     """
-    entry = _entry_of_kind(env_id, BACKGROUND)
-    check_image_size(image_size)
-    check_background_split(split)
-    count = n_background_domains(split, background_dir)
-    domain = check_domain(domain, count, split)
-    background = make_background(split, domain, image_size, image_size, background_dir, frame_budget, grayscale)
-    label = DomainLabel(split=split, domain=domain, n_domains=count)
-    return DMCEnv(
-        domains.load(entry.robot, entry.task),
-        label,
-        action_repeat=entry.action_repeat,
-        obs_type=obs_type,
-        image_size=image_size,
-        background=background,
-        render_mode=render_mode,
-    )
+    modes = [(split, {"split": split}) for split in splits(env_id)]
+    for split in PARAMETRIC_SPLITS.get(task_entry(env_id).variation, ()):
+        modes += [(f"{split}_{i:g}", {"split": split, "intensity": i}) for i in dmcgb.INTENSITIES]
+    return tuple(modes)
 
 
-def make_morphology_env(
-    env_id: str,
-    split: str | None = None,
-    domain: int | None = None,
-    *,
-    setting: int | None = None,
-    split_settings: Mapping[str, Sequence[int]] | None = None,
-    obs_type: str = "pixels",
-    observe_parameter: bool = False,
-    image_size: int = 84,
-    render_mode: str | None = None,
-) -> gym.Env:
-    """A modified-morphology env (entry point of the MT ids).
+# What a split shows in place of a benchmark's data when the kwarg that takes the data is not given.
+_PAPER_BACKGROUNDS = "procedural backgrounds stand in for the paper's Kinetics clips; give background_dir="
+_DMCGB_DATA = "procedural colour sets and clips stand in for DMC-GB's data; give data_dir= (DMC-GB's src/env/data)"
+_DAVIS = "procedural clips stand in for DAVIS 2017; give background_dir= (DAVIS's JPEGImages/480p)"
 
-    :param env_id: an MT id of :data:`SGFD_IDS`
-    :param split: ``"train"`` (default), ``"interpolation"`` or ``"extrapolation"``
-    :param domain: index of the setting within the split (default 0)
-    :param setting: pick one setting 1..10 directly instead of ``split``/``domain``; the env is then
-        the single domain of no split (``split`` None, ``domain`` 0)
-    :param split_settings: replace the settings of some splits, e.g. ``{"train": (1, 2, 3, 4)}``
-    :param obs_type: ``"pixels"`` or ``"state"``
-    :param observe_parameter: append the varied length, scaled to [-1, 1] over the ten settings, to the
-        state (see :class:`sgfd_envs.wrappers.ObserveParameter`); states only
-    :param image_size: height and width of the pixel observation
-    :param render_mode: None or ``"rgb_array"``
+
+def stand_in(env_id: str, split: str = "train", **env_kwargs: Any) -> str | None:
+    """What stands in for the benchmark's data in a split, naming the kwarg that takes the real data; None when
+    the split shows the data itself or needs none. Numbers measured on a stand-in are not the benchmark's.
+
+    :param env_id: one of :data:`ENV_IDS`
+    :param split: a split of the id
+    :param env_kwargs: the env's kwargs (``data_dir``, ``background_dir``, ``distractions`` matter)
     """
-    entry = _entry_of_kind(env_id, MORPHOLOGY)
-    check_observe_parameter(observe_parameter, obs_type)
-    label_split, label_domain, count, setting = select_setting(split, domain, setting, split_settings)
-    morphology = domains.morphology(entry.robot)
-    label = DomainLabel(
-        split=label_split,
-        domain=label_domain,
-        n_domains=count,
-        setting=setting,
-        morphology_parameter=morphology.parameter,
-        morphology_value=morphology.value(setting),
-    )
-    dm_env = domains.load(entry.robot, entry.task, morphology.scale(setting))
-    env = DMCEnv(
-        dm_env,
-        label,
-        action_repeat=entry.action_repeat,
-        obs_type=obs_type,
-        image_size=image_size,
-        render_mode=render_mode,
-    )
-    if not observe_parameter:
-        return env
-    scaled = scale_to_unit(morphology.value(setting), morphology.value(SETTINGS[0]), morphology.value(SETTINGS[-1]))
-    return ObserveParameter(env, scaled, morphology.parameter)
-
-
-def _benchmark_env(
-    env_id: str,
-    kind: str,
-    split: str,
-    domain: int,
-    obs_type: str,
-    image_size: int,
-    render_mode: str | None,
-    make_distraction: Callable[[Any], Any],
-    dm_env: Any = None,
-) -> DMCEnv:
-    """A benchmark id's env: its dm_control task, and ``make_distraction(physics)`` unless the split is train."""
-    entry = _entry_of_kind(env_id, kind)
-    check_image_size(image_size)
-    check_benchmark_split(env_id, split)
-    domain = check_domain(domain, 1, split)
-    if dm_env is None:
-        dm_env = domains.load_suite(entry.robot, entry.task)
-    distraction = None if split == "train" else make_distraction(dm_env.physics)
-    return DMCEnv(
-        dm_env,
-        DomainLabel(split=split, domain=domain, n_domains=1),
-        action_repeat=entry.action_repeat,
-        obs_type=obs_type,
-        image_size=image_size,
-        render_mode=render_mode,
-        distraction=distraction,
-    )
-
-
-def make_dmcgb_env(
-    env_id: str,
-    split: str = "train",
-    domain: int = 0,
-    *,
-    data_dir: str | Path | None = None,
-    obs_type: str = "pixels",
-    image_size: int = 84,
-    render_mode: str | None = None,
-) -> DMCEnv:
-    """A DMC-GB env (entry point of the ``DMCGB/`` ids; see :mod:`sgfd_envs.benchmarks.dmcgb`).
-
-    :param env_id: one of ``BENCHMARK_IDS["DMCGB"]``
-    :param split: ``"train"`` (dm_control's task) or a test mode: ``"color_easy"``, ``"color_hard"``,
-        ``"video_easy"``, ``"video_hard"``
-    :param domain: 0 (each split is one distribution)
-    :param data_dir: DMC-GB's ``src/env/data`` folder (colour sets and clips); None: procedural stand-ins
-    :param obs_type: ``"pixels"`` or ``"state"``
-    :param image_size: height and width of the pixel observation
-    :param render_mode: None or ``"rgb_array"``
-    """
-    if data_dir is not None:
-        check_data_dir(data_dir)
-    return _benchmark_env(
-        env_id, DMCGB, split, domain, obs_type, image_size, render_mode,
-        lambda physics: dmcgb.DMCGBDistraction(physics, split, image_size, data_dir),
-    )  # fmt: skip
-
-
-def make_dmcgb2_env(
-    env_id: str,
-    split: str = "train",
-    domain: int = 0,
-    *,
-    data_dir: str | Path | None = None,
-    obs_type: str = "pixels",
-    image_size: int = 84,
-    render_mode: str | None = None,
-) -> DMCEnv:
-    """A DMC-GB2 env (entry point of the ``DMCGB2/`` ids; see :mod:`sgfd_envs.benchmarks.dmcgb2`).
-
-    :param env_id: one of ``BENCHMARK_IDS["DMCGB2"]``
-    :param split: ``"train"`` or one of the twelve test modes (``"rotate_easy"``, ..., ``"color_video_hard"``)
-    :param domain: 0 (each split is one distribution)
-    :param data_dir: DMC-GB's data folder (DMC-GB2's ``envs/dmcgb/data`` holds the same files); None:
-        procedural stand-ins
-    :param obs_type: ``"pixels"`` or ``"state"``
-    :param image_size: height and width of the pixel observation
-    :param render_mode: None or ``"rgb_array"``
-    """
-    entry = _entry_of_kind(env_id, DMCGB2)
-    if data_dir is not None:
-        check_data_dir(data_dir)
-    check_image_size(image_size)
-    check_benchmark_split(env_id, split)
-    dm_env = None
-    if "video" in split:
-        dm_env = dmcgb2.load_with_projector(entry.robot, entry.task, dmcgb2.projector_texture_side(image_size))
-    return _benchmark_env(
-        env_id, DMCGB2, split, domain, obs_type, image_size, render_mode,
-        lambda physics: dmcgb2.DMCGB2Distraction(physics, entry.robot, split, image_size, data_dir),
-        dm_env,
-    )  # fmt: skip
-
-
-def make_dcs_env(
-    env_id: str,
-    split: str = "train",
-    domain: int = 0,
-    *,
-    dynamic: bool = False,
-    distractions: Sequence[str] = dcs.DISTRACTIONS,
-    background_videos: str = "train",
-    background_dir: str | Path | None = None,
-    obs_type: str = "pixels",
-    image_size: int = 84,
-    render_mode: str | None = None,
-) -> DMCEnv:
-    """A Distracting Control Suite env (entry point of the ``DCS/`` ids; see :mod:`sgfd_envs.benchmarks.dcs`).
-
-    :param env_id: one of ``BENCHMARK_IDS["DCS"]``
-    :param split: ``"train"`` (no distraction) or a difficulty: ``"easy"``, ``"medium"``, ``"hard"``
-    :param domain: 0 (each split is one distribution)
-    :param dynamic: distractions that move during the episode (DCS's default: static)
-    :param distractions: any of ``"background"``, ``"camera"``, ``"colour"`` (default all three)
-    :param background_videos: DCS's DAVIS list, ``"train"`` (60 videos) or ``"validation"`` (30)
-    :param background_dir: DAVIS's ``JPEGImages/480p`` folder (or the DAVIS folder above it); None:
-        procedural stand-ins
-    :param obs_type: ``"pixels"`` or ``"state"``
-    :param image_size: height and width of the pixel observation
-    :param render_mode: None or ``"rgb_array"``
-    """
-    entry = _entry_of_kind(env_id, DCS)
-    # Checked on every split, train too, so a bad value fails where it is given.
-    distractions = dcs.check_distractions(distractions)
-    if not isinstance(dynamic, bool):
-        raise ValueError(f"dynamic must be True or False, got {dynamic!r}")
-    if background_videos not in dcs.VIDEO_SPLITS:
-        raise ValueError(f"background_videos must be one of {dcs.VIDEO_SPLITS}, got {background_videos!r}")
-    if background_dir is not None:
-        davis_folder(background_dir)
-    return _benchmark_env(
-        env_id, DCS, split, domain, obs_type, image_size, render_mode,
-        lambda physics: dcs.DCSDistraction(
-            physics, entry.robot, split, dynamic, distractions, background_videos, image_size, background_dir
-        ),
-    )  # fmt: skip
-
-
-BUILDERS: dict[str, Callable[..., gym.Env]] = {
-    BACKGROUND: make_background_env,
-    MORPHOLOGY: make_morphology_env,
-    CAUSAL_WORLD: make_causal_world_env,
-    DMCGB: make_dmcgb_env,
-    DMCGB2: make_dmcgb2_env,
-    DCS: make_dcs_env,
-}
-
-
-def env_kwargs_of(env_id: str) -> tuple[str, ...]:
-    """The keyword arguments ``gym.make`` takes for an id (those of its kind's builder).
-
-    :param env_id: one of :data:`TASKS`
-    """
-    builder = BUILDERS[task_entry(env_id).variation]
-    names = inspect.signature(builder).parameters
-    if builder is make_causal_world_env:
-        names = {**names, **inspect.signature(CausalWorldEnv).parameters}
-    return tuple(name for name in names if name not in ("env_id", "task", "kwargs"))
-
-
-def make_env(env_id: str, **kwargs: Any) -> gym.Env:
-    """The entry point of every id: refuses, by name, keyword arguments of the other kind of id (a background
-    id given ``setting=``, an MT id given ``background_dir=``), then builds the env.
-
-    :param env_id: one of :data:`TASKS`
-    :param kwargs: the id's keyword arguments (:func:`env_kwargs_of`)
-    """
-    allowed = env_kwargs_of(env_id)
-    unknown = [name for name in kwargs if name not in allowed]
-    if unknown:
-        kind = task_entry(env_id).variation.replace("_", " ")
-        raise ValueError(
-            f"{env_id} does not take {', '.join(map(repr, unknown))}: {kind} ids take {', '.join(allowed)}"
-        )
-    return BUILDERS[task_entry(env_id).variation](env_id, **kwargs)
+    variation = task_entry(env_id).variation
+    if variation == BACKGROUND:
+        return _PAPER_BACKGROUNDS if env_kwargs.get("background_dir") is None else None
+    if variation not in BENCHMARK_KINDS or split == "train":
+        return None
+    if split == dmcgb.DISTRACTING_CS:
+        return _DAVIS if env_kwargs.get("background_dir") is None else None
+    if variation == DCS:
+        shows_videos = "background" in dcs.check_distractions(env_kwargs.get("distractions", dcs.DISTRACTIONS))
+        return _DAVIS if shows_videos and env_kwargs.get("background_dir") is None else None
+    uses_data = "color" in split or "video" in split
+    return _DMCGB_DATA if uses_data and env_kwargs.get("data_dir") is None else None
 
 
 def register_envs() -> None:
@@ -460,58 +213,7 @@ def register_envs() -> None:
             continue
         gym.register(
             env_id,
-            entry_point=make_env,
+            entry_point="sgfd_envs.builders:make_env",
             kwargs={"env_id": env_id},
             max_episode_steps=entry.max_episode_steps,
         )
-
-
-def _make_monitored_env(env_id: str, split: str, domain: int, action_seed: int, env_kwargs: dict) -> gym.Env:
-    from stable_baselines3.common.monitor import Monitor
-
-    env = gym.make(env_id, split=split, domain=domain, **env_kwargs)
-    env.action_space.seed(action_seed)
-    # outermost, so that SB3's env_method reaches it in a subprocess too
-    return ResumableState(Monitor(env))
-
-
-def make_domain_vec_env(
-    env_id: str,
-    split: str = "train",
-    n_envs: int | None = None,
-    seed: int = 0,
-    vec_env_cls: type[VecEnv] | None = None,
-    **env_kwargs,
-) -> VecEnv:
-    """An SB3 VecEnv with one sub-env per domain of a split (sub-env i is domain i % n_domains).
-
-    Each sub-env is wrapped in SB3's Monitor and seeded ``seed + i`` (its action space too), and outermost in
-    :class:`sgfd_envs.state.ResumableState` (``env_method("get_training_state")`` gives its state).
-
-    :param env_id: one of :data:`ENV_IDS`
-    :param split: a split of the id (see :func:`splits`)
-    :param n_envs: number of sub-envs, default one per domain
-    :param seed: seed of sub-env 0
-    :param vec_env_cls: SB3 VecEnv class, default DummyVecEnv
-    :param env_kwargs: more kwargs for ``gym.make`` (``obs_type``, ``image_size``, ``background_dir``...)
-    """
-    # Imported here, not at the top: torch makes `import sgfd_envs` ~3 s slower for gymnasium-only use.
-    from stable_baselines3.common.vec_env import DummyVecEnv
-
-    task_entry(env_id)
-    if "domain" in env_kwargs:
-        raise ValueError("make_domain_vec_env sets domain= itself (sub-env i gets domain i % n_domains)")
-    count = n_domains(env_id, split, **env_kwargs)
-    if n_envs is None:
-        n_envs = count
-    if isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1:
-        raise ValueError(f"n_envs must be a positive int or None, got {n_envs!r}")
-
-    # A module-level function in a partial pickles by reference, so a subprocess imports sgfd_envs
-    # (registering the ids) before it builds its env.
-    factories = [
-        functools.partial(_make_monitored_env, env_id, split, i % count, seed + i, env_kwargs) for i in range(n_envs)
-    ]
-    vec_env = (vec_env_cls or DummyVecEnv)(factories)
-    vec_env.seed(seed)
-    return vec_env

@@ -47,6 +47,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+#: what the ``zoo`` extra installs beyond the agents (pyproject.toml), by import name
+ZOO_EXTRA_MODULES = frozenset(
+    ["rl_zoo3", "sb3_contrib", "optuna", "ray", "rliable", "matplotlib", "pandas", "yaml", "rich", "tqdm"]
+)
+
+
 def usage() -> str:
     width = max(map(len, COMMANDS)) + 2
     lines = [f"  {name:<{width}}{description}" for name, (_, description) in COMMANDS.items()]
@@ -84,6 +90,16 @@ def run(command: str, argv: Sequence[str]) -> int:
     except ZooError as error:
         print(f"sgfd-zoo {command}: {error.label}: {error}", file=sys.stderr)
         return error.exit_code
+    except ModuleNotFoundError as error:
+        missing = (error.name or "").partition(".")[0]
+        if missing not in ZOO_EXTRA_MODULES:
+            raise
+        print(
+            f"sgfd-zoo {command}: error: it needs {missing}, which the zoo's install brings: "
+            "pip install 'sb3-sgfd[zoo]' (from a clone: pip install -e ./sgfd_envs -e '.[zoo]')",
+            file=sys.stderr,
+        )
+        return 2
 
 
 if __name__ == "__main__":

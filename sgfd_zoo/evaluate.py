@@ -1,6 +1,8 @@
 """``sgfd-zoo evaluate``: every trained model of a log folder on every split, as the paper's tables and as
 aggregate statistics with confidence intervals (:mod:`sgfd_zoo.statistics`); runs on a benchmark's ids (DMC-GB,
-DMC-GB2, the Distracting Control Suite) also in that benchmark's layout, tasks x modes, with the IQM of each mode."""
+DMC-GB2, the Distracting Control Suite) also in that benchmark's layout, tasks x modes, with the IQM of each mode
+(DMC-GB's and DMC-GB2's ``distracting_cs`` once per intensity). A split played on a built-in stand-in of the
+benchmark's data (no ``data_dir``/``background_dir`` in the run's env kwargs) is marked in every table."""
 
 from __future__ import annotations
 
@@ -21,7 +23,18 @@ from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id
 from sgfd_zoo.runs import RunFolder, find_runs
 from sgfd_zoo.statistics import MAX_RETURN, aggregate, read_csv, score_rows, split_sort_key, write_csv, write_statistics
 
-RESULT_FIELDS = ["algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes", "run"]
+RESULT_FIELDS = ["algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes", "stand_in", "run"]
+# How a table marks a split played on a stand-in, and the note under it.
+STAND_IN_MARK = " (stand-in)"
+STAND_IN_NOTE = (
+    "\nMarked (stand-in): played on sgfd_envs' procedural stand-ins of the benchmark's data (no data_dir / "
+    "background_dir given), not the benchmark's numbers.\n"
+)
+
+
+def on_stand_in(row: dict[str, Any]) -> bool:
+    """Whether a result row was played on a stand-in (``stand_in`` as written, or read back from csv)."""
+    return str(row.get("stand_in", False)).lower() in ("true", "1")
 
 
 def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[str, Any]]:
@@ -34,15 +47,22 @@ def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[st
 
     from sgfd_zoo.experiment import wrap_like_training
 
-    key = {"n_episodes": n_episodes, "seed": seed, "model_mtime_ns": run.model_path.stat().st_mtime_ns}
+    modes = sgfd_envs.evaluation_modes(run.env_id)
+    key = {
+        "n_episodes": n_episodes,
+        "seed": seed,
+        "model_mtime_ns": run.model_path.stat().st_mtime_ns,
+        "modes": [label for label, _ in modes],
+    }
     if run.final_evaluation.exists():
         kept = json.loads(run.final_evaluation.read_text())
         if kept.get("key") == key:
             return [{**row, "run": str(run.path)} for row in kept["rows"]]
     model = run.load_model()
     rows = []
-    for split in sgfd_envs.splits(run.env_id):
-        env = sgfd_envs.make_domain_vec_env(run.env_id, split=split, seed=seed, **run.env_kwargs)
+    for label, mode_kwargs in modes:
+        env_kwargs = {**run.env_kwargs, **mode_kwargs}
+        env = sgfd_envs.make_domain_vec_env(run.env_id, seed=seed, **env_kwargs)
         env = wrap_like_training(env, run.frame_stack)
         rewards, _ = evaluate_policy(model, env, n_eval_episodes=n_episodes, return_episode_rewards=True)
         env.close()
@@ -50,11 +70,12 @@ def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[st
             {
                 "algo": run.algo,
                 "env": run.env_id,
-                "split": split,
+                "split": label,
                 "seed": run.seed,
                 "mean_reward": float(np.mean(rewards)),
                 "std_reward": float(np.std(rewards)),
                 "n_episodes": len(rewards),
+                "stand_in": sgfd_envs.stand_in(run.env_id, **env_kwargs) is not None,
                 "run": str(run.path),
             }
         )
@@ -68,6 +89,7 @@ def render_tables(results: list[dict[str, Any]]) -> str:
     order), ``mean ± std`` over seeds (of each seed's mean return), and a Total row summing the means.
     """
     by_cell: dict[tuple[str, str, str], list[float]] = defaultdict(list)
+    stand_in_splits = {row["split"] for row in results if on_stand_in(row)}
     for row in results:
         by_cell[(row["split"], row["env"], row["algo"])].append(float(row["mean_reward"]))
     splits = sorted({key[0] for key in by_cell}, key=split_sort_key)
@@ -90,13 +112,15 @@ def render_tables(results: list[dict[str, Any]]) -> str:
         matrix.append(["**Total**", *(f"**{totals[algo]:.1f}**" for algo in algos)])
         counts = [len(values) for (s, _, _), values in by_cell.items() if s == split]
         seeds = str(min(counts)) if min(counts) == max(counts) else f"{min(counts)}-{max(counts)}"
+        mark = STAND_IN_MARK if split in stand_in_splits else ""
         writer = MarkdownTableWriter(
-            table_name=f"{split} (mean ± std over {seeds} seed{'s' if max(counts) > 1 else ''})",
+            table_name=f"{split}{mark} (mean ± std over {seeds} seed{'s' if max(counts) > 1 else ''})",
             headers=["Task", *(column_name(algo) for algo in algos)],
             value_matrix=matrix,
         )
         writer.margin = 1
         out.write(writer.dumps())
+        out.write(STAND_IN_NOTE if mark else "")
         out.write("\n")
     return out.getvalue()
 
@@ -135,6 +159,8 @@ def render_benchmark_tables(results: list[dict[str, Any]], reps: int = 2000, see
         for row in rows:
             by_cell[(row["algo"], row["env"], row["split"])].append(float(row["mean_reward"]))
         modes = sorted({row["split"] for row in rows}, key=split_sort_key)
+        stand_in_modes = {row["split"] for row in rows if on_stand_in(row)}
+        headers = [mode + (STAND_IN_MARK if mode in stand_in_modes else "") for mode in modes]
         for algo in sorted({row["algo"] for row in rows}, key=algo_sort_key):
             envs = sorted({env for a, env, _ in by_cell if a == algo})
             matrix = []
@@ -158,11 +184,12 @@ def render_benchmark_tables(results: list[dict[str, Any]], reps: int = 2000, see
                     f"{name}: {column_name(algo)} (mean ± std over {seeds} seed{'s' if max(counts) > 1 else ''}; "
                     f"IQM of return / {MAX_RETURN:g} over runs x tasks, 95% CI)"
                 ),
-                headers=["Task", *modes],
+                headers=["Task", *headers],
                 value_matrix=matrix,
             )
             writer.margin = 1
             out.write(writer.dumps())
+            out.write(STAND_IN_NOTE if stand_in_modes else "")
             out.write("\n")
     return out.getvalue()
 

@@ -25,6 +25,8 @@ from sgfd_zoo.files import UnreadableFile, atomic_write
 from sgfd_zoo.runs import NamedRun, RunFolder, run_paths
 
 FINAL_EVALUATION_FIELDS = ("algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes")
+# Kept when present: whether the split played on a built-in stand-in of a benchmark's data (older records lack it).
+OPTIONAL_EVALUATION_FIELDS = ("stand_in",)
 
 
 @dataclass(frozen=True)
@@ -64,7 +66,11 @@ class RunRecord(NamedRun):
         types = {"seed": int, "mean_reward": float, "std_reward": float, "n_episodes": int}
         try:
             return [
-                {**{key: types.get(key, str)(row[key]) for key in FINAL_EVALUATION_FIELDS}, "run": str(self.path)}
+                {
+                    **{key: types.get(key, str)(row[key]) for key in FINAL_EVALUATION_FIELDS},
+                    **{key: row[key] for key in OPTIONAL_EVALUATION_FIELDS if row.get(key)},
+                    "run": str(self.path),
+                }
                 for row in rows
             ]
         except (KeyError, TypeError, ValueError) as error:
@@ -110,7 +116,8 @@ class RunRecord(NamedRun):
 
         def write_rows(tmp: str) -> None:
             with open(tmp, "w", newline="") as handle:
-                writer = csv.DictWriter(handle, FINAL_EVALUATION_FIELDS, extrasaction="ignore")
+                fields = FINAL_EVALUATION_FIELDS + OPTIONAL_EVALUATION_FIELDS
+                writer = csv.DictWriter(handle, fields, extrasaction="ignore")
                 writer.writeheader()
                 writer.writerows(final_rows)
 

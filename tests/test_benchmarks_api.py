@@ -13,6 +13,7 @@ from gymnasium.utils.env_checker import check_env as gymnasium_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import sgfd_envs
+from sgfd_envs.builders import StandInWarning
 from sgfd_envs.registry import task_entry
 
 BENCHMARK_IDS = [env_id for ids in sgfd_envs.BENCHMARK_IDS.values() for env_id in ids]
@@ -73,6 +74,18 @@ def test_splits_are_train_then_the_benchmarks_modes_with_one_domain_each():
         "color_video_hard",
     )
     assert sgfd_envs.splits("DCS/reacher-easy-v0") == ("train", "easy", "medium", "hard")
+    # distracting_cs takes an intensity: evaluated once per intensity, named as DMC-GB2 names it.
+    intensities = (0.025, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5)
+    for env_id in ("DMCGB/walker-walk-v0", "DMCGB2/cheetah-run-v0"):
+        modes = sgfd_envs.evaluation_modes(env_id)
+        assert [label for label, _ in modes[: len(sgfd_envs.splits(env_id))]] == list(sgfd_envs.splits(env_id))
+        assert modes[-8:] == tuple(
+            (f"distracting_cs_{i:g}", {"split": "distracting_cs", "intensity": i}) for i in intensities
+        )
+        assert sgfd_envs.n_domains(env_id, "distracting_cs") == 1
+    assert [label for label, _ in sgfd_envs.evaluation_modes("DCS/reacher-easy-v0")] == list(
+        sgfd_envs.splits("DCS/reacher-easy-v0")
+    )
     assert sgfd_envs.test_splits("DCS/reacher-easy-v0") == ("easy", "medium", "hard")
     for env_id in BENCHMARK_IDS:
         assert all(sgfd_envs.n_domains(env_id, split) == 1 for split in sgfd_envs.splits(env_id))
@@ -116,12 +129,18 @@ def test_gymnasium_and_sb3_checkers_pass_on_the_hardest_split(env_id):
     kwargs = {"dynamic": True} if benchmark(env_id) == "DCS" else {}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        with gym.make(env_id, split=split, image_size=24, render_mode="rgb_array", **kwargs) as env:
+        # The checkers look at spaces and types, not at pixels: the fast render is enough.
+        with gym.make(env_id, split=split, image_size=24, render_mode="rgb_array", render="fast", **kwargs) as env:
             gymnasium_check_env(env.unwrapped)
-        with gym.make(env_id, split=split, image_size=24, **kwargs) as env:
+        with gym.make(env_id, split=split, image_size=24, render="fast", **kwargs) as env:
             sb3_check_env(env, warn=True)
-    # SB3 advises 36x36 and larger images for its CNN; these tiny ones keep the suite fast.
-    messages = [str(w.message) for w in caught if "minimal resolution" not in str(w.message)]
+    # SB3 advises 36x36 and larger images for its CNN; these tiny ones keep the suite fast. The stand-in's warning
+    # is meant.
+    messages = [
+        str(w.message)
+        for w in caught
+        if "minimal resolution" not in str(w.message) and not issubclass(w.category, StandInWarning)
+    ]
     assert messages == []
 
 
@@ -130,16 +149,23 @@ def test_gymnasium_and_sb3_checkers_pass_on_the_hardest_split(env_id):
 def test_checkers_pass_with_either_observation(obs_type):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        with gym.make("DMCGB/ball_in_cup-catch-v0", split="color_hard", obs_type=obs_type, image_size=40) as env:
+        with gym.make(
+            "DMCGB/ball_in_cup-catch-v0", split="color_hard", obs_type=obs_type, image_size=40, render="fast"
+        ) as env:
             gymnasium_check_env(env.unwrapped)
             sb3_check_env(env, warn=True)
-    messages = [str(w.message) for w in caught if "infinity" not in str(w.message)]
+    messages = [
+        str(w.message)
+        for w in caught
+        if "infinity" not in str(w.message) and not issubclass(w.category, StandInWarning)
+    ]
     assert messages == []
 
 
 def rollout(env_id, split, seed=3, n_steps=3, **kwargs):
-    """Physics states, rewards, pixel observations of a fixed action sequence."""
-    with gym.make(env_id, split=split, image_size=16, **kwargs) as env:
+    """Physics states, rewards, pixel observations (the fast render: only whether they differ matters) of a fixed
+    action sequence."""
+    with gym.make(env_id, split=split, image_size=16, render="fast", **kwargs) as env:
         observation, info = env.reset(seed=seed)
         physics = env.unwrapped.physics
         rng = np.random.default_rng(0)
@@ -161,6 +187,8 @@ def test_a_distraction_never_changes_the_task(env_id):
     variants = [(split, {}) for split in sgfd_envs.test_splits(env_id)]
     if benchmark(env_id) == "DCS":
         variants += [(split, {"dynamic": True}) for split in sgfd_envs.test_splits(env_id)]
+    if benchmark(env_id) in ("DMCGB", "DMCGB2"):
+        variants += [("distracting_cs", {"intensity": 0.025}), ("distracting_cs", {"intensity": 0.5})]
     for split, kwargs in variants:
         split_states, split_rewards, split_observations = rollout(env_id, split, **kwargs)
         np.testing.assert_array_equal(split_states, states, err_msg=f"{split} {kwargs}")
@@ -175,7 +203,9 @@ RESUMED = [
     ("DMCGB2/walker-walk-v0", "rotate_shift_hard", {}),
     ("DMCGB2/cheetah-run-v0", "color_video_hard", {}),
     ("DCS/walker-walk-v0", "hard", {"dynamic": True}),
-    ("DCS/reacher-easy-v0", "medium", {}),
+    ("DCS/reacher-easy-v0", "medium", {"render": "fast"}),
+    ("DMCGB/cartpole-swingup-v0", "distracting_cs", {"intensity": 0.2, "render": "fast"}),
+    ("DMCGB2/finger-spin-v0", "distracting_cs", {"intensity": 0.5}),
 ]
 
 
@@ -261,7 +291,12 @@ def test_the_benchmark_ids_work_with_make_domain_vec_env():
     [
         ("DMCGB/walker-walk-v0", {"split": "rotate_hard"}, ValueError, r"split must be one of \('train', 'color_easy'"),
         ("DMCGB/walker-walk-v0", {"domain": 1}, ValueError, r"domain must be an int in 0..0 for split 'train'"),
-        ("DMCGB/walker-walk-v0", {"background_dir": "/tmp"}, ValueError, r"does not take 'background_dir': DMCGB ids"),
+        ("DMCGB/walker-walk-v0", {"dynamic": True}, ValueError, r"does not take 'dynamic': DMCGB ids"),
+        ("DMCGB/walker-walk-v0", {"split": "distracting_cs"}, ValueError, r"intensity must be one of \(0.025, 0.05,"),
+        ("DMCGB/walker-walk-v0", {"split": "distracting_cs", "intensity": 0.33}, ValueError, r"got 0.33"),
+        ("DMCGB2/walker-walk-v0", {"intensity": 0.1}, ValueError, r"intensity is for split='distracting_cs' only"),
+        ("DCS/walker-walk-v0", {"intensity": 0.1}, ValueError, r"does not take 'intensity': DCS ids"),
+        ("DMCGB/walker-walk-v0", {"render": "pretty"}, ValueError, r"render must be one of \('benchmark', 'fast'\)"),
         ("DMCGB/walker-walk-v0", {"data_dir": "/nowhere"}, FileNotFoundError, r"data_dir '/nowhere' is not an"),
         ("DMCGB2/walker-walk-v0", {"split": "hard"}, ValueError, r"split must be one of \('train', 'rotate_easy'"),
         ("DMCGB2/walker-walk-v0", {"image_size": 0}, ValueError, r"image_size must be a positive int"),
@@ -288,3 +323,28 @@ def test_the_demo_draws_every_task_of_a_benchmark_in_every_split():
     assert grid.shape == (6 * (34 + 168), 4 * 168, 3)
     with pytest.raises(ValueError, match="benchmark must be one of"):
         benchmark_grid("DMCGB3")
+
+
+def test_a_stand_in_is_named_once_flagged_in_info_and_known_without_an_env(tmp_path, monkeypatch):
+    from sgfd_envs import builders
+
+    monkeypatch.setattr(builders, "_WARNED", set())
+    assert sgfd_envs.stand_in("DMCGB/walker-walk-v0", "train") is None
+    assert "data_dir=" in sgfd_envs.stand_in("DMCGB/walker-walk-v0", "video_hard")
+    assert sgfd_envs.stand_in("DMCGB/walker-walk-v0", "video_hard", data_dir=tmp_path) is None
+    assert "background_dir=" in sgfd_envs.stand_in("DMCGB2/walker-walk-v0", "distracting_cs", intensity=0.1)
+    assert "background_dir=" in sgfd_envs.stand_in("DCS/walker-walk-v0", "easy")
+    assert sgfd_envs.stand_in("DCS/walker-walk-v0", "easy", distractions=("camera",)) is None
+    assert "Kinetics" in sgfd_envs.stand_in("SGFD/walker-walk-v0", "test")
+    assert sgfd_envs.stand_in("SGFD/MT-walker-walk-v0", "extrapolation") is None
+    with pytest.warns(StandInWarning, match=r"DMCGB2/finger-spin-v0 split='color_hard': .* give data_dir="):
+        first = gym.make("DMCGB2/finger-spin-v0", split="color_hard", obs_type="state")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # once per process: the second env of that stand-in is quiet
+        second = gym.make("DMCGB/walker-walk-v0", split="video_easy", obs_type="state")
+        train = gym.make("DMCGB/walker-walk-v0", obs_type="state")
+    for env, flagged in ((first, True), (second, True), (train, False)):
+        _, info = env.reset(seed=0)
+        assert info["stand_in"] is flagged
+        assert env.step(env.action_space.sample())[-1]["stand_in"] is flagged
+        env.close()

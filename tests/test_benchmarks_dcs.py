@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from sgfd_envs.benchmarks import dcs
+from sgfd_envs.benchmarks import dcs, dmcgb
 from sgfd_envs.benchmarks.dcs import DAVIS_VIDEOS, DIFFICULTY_SCALE, to_spherical
 from sgfd_envs.benchmarks.media import davis_clips
 
@@ -192,7 +192,8 @@ def test_davis_frames_are_read_from_the_folder_and_resized_whole(davis):
         background = env.unwrapped.distraction.background
         name = DAVIS_VIDEOS["validation"][background.video_index]
         image = cv2.imread(str(folder / name / f"{background.frame_index:05d}.jpg"))
-        expected = cv2.cvtColor(cv2.resize(image, (side, side), interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2RGB)
+        # DCS's 800 x 800 sky, the frame resized bilinearly as its tf.image.resize does.
+        expected = cv2.cvtColor(cv2.resize(image, (side, side), interpolation=cv2.INTER_LINEAR), cv2.COLOR_BGR2RGB)
         np.testing.assert_array_equal(sky_bytes(env.unwrapped.physics, side), expected)
     # The 480p folder itself works as well.
     with gym.make("DCS/finger-spin-v0", split="easy", background_dir=folder, background_videos="validation") as env:
@@ -204,3 +205,48 @@ def test_missing_davis_videos_are_named(davis):
         gym.make("DCS/finger-spin-v0", split="easy", background_dir=davis)
     with pytest.raises(FileNotFoundError, match=r"background_dir .* is not an existing folder"):
         gym.make("DCS/finger-spin-v0", split="easy", background_dir=davis / "nowhere")
+
+
+# --- DMC-GB's distracting_cs (on DMCGB and DMCGB2 ids) -------------------------------------------------------
+
+
+def test_distracting_cs_is_dmc_gbs_table_of_intensities_and_videos():
+    assert dmcgb.DISTRACTING_CS_VIDEOS == {
+        0.025: 2, 0.05: 2, 0.1: 4, 0.15: 6, 0.2: 8, 0.3: None, 0.4: None, 0.5: None
+    }  # fmt: skip
+    for env_id in ("DMCGB/walker-walk-v0", "DMCGB2/finger-spin-v0"):
+        for intensity, videos in dmcgb.DISTRACTING_CS_VIDEOS.items():
+            with gym.make(env_id, split="distracting_cs", intensity=intensity, obs_type="state") as env:
+                distraction = env.unwrapped.distraction
+                assert distraction.scale == intensity and distraction.update_every == 2
+                assert len(distraction.background._clips) == (videos or 60)
+                assert distraction.background.dynamic and distraction.camera.max_velocity == 0.4 * intensity
+                assert distraction.colour.step_std == 0.03 * intensity
+                assert distraction.camera.angle_delta == np.pi / 2 * intensity
+
+
+@pytest.mark.parametrize("env_id", ["DMCGB/walker-walk-v0", "DMCGB2/walker-walk-v0"])
+def test_distracting_cs_moves_every_second_simulator_step(env_id):
+    """Walker repeats each action 4 times (DMC-GB) or 2 (DMC-GB2): the walks move 2 or 1 times per agent step; a
+    reset draws them anew (the camera, as DMC-GB's, takes one walk step there) and restarts the count."""
+    repeat = 4 if env_id.startswith("DMCGB/") else 2
+    with gym.make(env_id, split="distracting_cs", intensity=0.2, obs_type="state") as env:
+        env.reset(seed=0)
+        distraction = env.unwrapped.distraction
+        camera, colour, background = distraction.camera, distraction.colour, distraction.background
+        calls = {"camera": 0, "colour": 0, "background": 0}
+        for name, part in (("camera", camera), ("colour", colour), ("background", background)):
+            advance = part.advance
+
+            def counted(*args, name=name, advance=advance):
+                calls[name] += 1
+                return advance(*args)
+
+            part.advance = counted
+        for step in range(1, 4):
+            env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+            assert calls == dict.fromkeys(calls, step * repeat // 2)
+        env.reset()
+        env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+        expected = 3 * repeat // 2 + repeat // 2
+        assert calls == {"camera": expected + 1, "colour": expected, "background": expected}

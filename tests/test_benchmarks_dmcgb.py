@@ -2,12 +2,15 @@
 the sky and the floor (hard), hard farther from train than easy, the stand-ins' geometry, and DMC-GB's own data
 read from a folder."""
 
+import colorsys
+
 import cv2
 import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
 import torch
+from benchmark_methods import interior
 from dm_control.mujoco import wrapper
 
 from sgfd_envs.benchmarks import dmcgb
@@ -113,7 +116,7 @@ def step_both(envs, n_steps):
 
 
 @pytest.mark.parametrize("mode", ["video_easy", "video_hard"])
-def test_video_replaces_exactly_the_sky_or_the_sky_and_the_floor(mode):
+def test_video_replaces_the_green_screened_sky_or_sky_and_floor(mode):
     with (
         gym.make("DMCGB/cartpole-swingup-v0", split=mode, image_size=SIZE) as env,
         gym.make("DMCGB/cartpole-swingup-v0", image_size=SIZE) as train,
@@ -121,19 +124,34 @@ def test_video_replaces_exactly_the_sky_or_the_sky_and_the_floor(mode):
         observation, train_observation = step_both([env, train], n_steps=3)
         physics = env.unwrapped.physics
         labels = segmentation(physics)
-        sky = labels[..., 0] == -1
+        sky = interior(labels[..., 0] == -1)
         planes = np.flatnonzero(physics.model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE)
-        floor = (labels[..., 1] == mujoco.mjtObj.mjOBJ_GEOM) & np.isin(labels[..., 0], planes)
+        floor = interior((labels[..., 1] == mujoco.mjtObj.mjOBJ_GEOM) & np.isin(labels[..., 0], planes))
+        robot = interior((labels[..., 0] != -1) & ~np.isin(labels[..., 0], planes))
         replaced = sky | floor if mode == "video_hard" else sky
         assert sky.sum() > 50 and floor.sum() > 50
         # Episode 0 after seeding shows clip 1 (DMC-GB cycles from the second clip), frame = agent step.
         clips = dmcgb_clips(mode, SIZE, None)
         frame = clips.clip(1).frame(3)
         np.testing.assert_array_equal(observation[replaced], frame[replaced])
-        # Everything else is what the undistracted env drew, robot pixels included.
-        np.testing.assert_array_equal(observation[~replaced], train_observation[~replaced])
+        # The robot is what the undistracted env drew; video_easy's floor too, shadow and reflection included.
+        kept = robot | floor if mode == "video_easy" else robot
+        np.testing.assert_array_equal(observation[kept], train_observation[kept])
         next_episode, _ = env.reset()
         np.testing.assert_array_equal(next_episode[replaced], clips.clip(2).frame(0)[replaced])
+
+
+def test_the_green_screen_keys_dmc_gbs_hsv_box():
+    # DMC-GB's rule per pixel: colorsys's HSV, hue in 100-185 degrees, saturation from 80 and value from 70 of 255.
+    rng = np.random.default_rng(0)
+    pixels = np.concatenate([[[51, 204, 51], [30, 69, 30], [200, 120, 60]], rng.integers(0, 256, (2000, 3))])
+    expected = []
+    for r, g, b in pixels:
+        h, s, v = colorsys.rgb_to_hsv(r / 255, g / 255, b / 255)
+        expected.append(bool(100 <= h * 360 <= 185 and 80 <= s * 255 <= 255 and 70 <= v * 255 <= 255))
+    keyed = dmcgb.green_screen_mask(pixels.astype(np.uint8)[np.newaxis])[0]
+    assert keyed.tolist() == expected
+    assert keyed[0] and not keyed[1] and not keyed[2] and 100 < keyed.sum() < 1000
 
 
 def distance_to_train(env_id, split, seeds=range(4)):
@@ -219,7 +237,7 @@ def test_clips_are_read_from_dmcgbs_folder_and_resized_whole(data_dir):
     assert len(frames) == 4
     with gym.make("DMCGB/finger-spin-v0", split="video_hard", data_dir=data_dir, image_size=SIZE) as env:
         observations = [env.reset(seed=0)[0]] + [env.step(np.zeros(2, dtype=np.float32))[0] for _ in range(5)]
-        background = segmentation(env.unwrapped.physics)[..., 0] == -1
+        background = interior(segmentation(env.unwrapped.physics)[..., 0] == -1)
     for step, observation in enumerate(observations):  # 6 steps of a 4-frame clip: it wraps around
         np.testing.assert_array_equal(observation[background], frames[step % 4][background])
 

@@ -16,8 +16,13 @@ from sgfd_zoo.runs import RunFolder
 
 BENCHMARK_IDS = [env_id for ids in sgfd_envs.BENCHMARK_IDS.values() for env_id in ids]
 AGENTS = ("ambs", "dbc", "sac", "sgfd_sac", "sgfd_sac_moderate", "sgfd_sac_official", "sgfd_sac_plain", "sgqn", "ted")
-# The benchmarks' training lengths in simulator steps (frames): DMC-GB 500k, DMC-GB2 1M, DCS 1M (as DMC-GB2).
-TRAINING_FRAMES = {"DMCGB": 500_000, "DMCGB2": 1_000_000, "DCS": 1_000_000}
+
+
+def training_steps(env_id):
+    """Agent steps as each benchmark's code trained: DMC-GB's train.py 500k env.step calls, DMC-GB2 1M simulator
+    steps at repeat 2 (500k), the DCS ids 1M simulator steps at their repeats (the zoo's choice)."""
+    benchmark = env_id.split("/")[0]
+    return 500_000 if benchmark in ("DMCGB", "DMCGB2") else 1_000_000 // task_entry(env_id).action_repeat
 
 
 def test_the_zoo_accepts_the_benchmark_ids_and_names_their_runs():
@@ -37,7 +42,7 @@ def test_every_agent_has_an_entry_for_every_benchmark_id(agent, quick):
         if quick:
             assert entry == entries["default"]
         else:
-            steps = TRAINING_FRAMES[env_id.split("/")[0]] // task_entry(env_id).action_repeat
+            steps = training_steps(env_id)
             assert entry["n_timesteps"] == steps and entry["buffer_size"] == steps
             assert {k: v for k, v in entry.items() if k not in ("n_timesteps", "buffer_size")} == {
                 k: v for k, v in entries["default"].items() if k not in ("n_timesteps", "buffer_size")
@@ -56,7 +61,7 @@ def test_paper_scale_models_build_on_the_benchmark_ids(agent, env_id, tmp_path):
     try:
         assert model.n_envs == 1  # one training env: the undistracted split
         assert model.observation_space.shape == (9, 84, 84)
-        assert saved["n_timesteps"] == TRAINING_FRAMES[env_id.split("/")[0]] // task_entry(env_id).action_repeat
+        assert saved["n_timesteps"] == training_steps(env_id)
         assert model.replay_buffer.buffer_size == saved["buffer_size"]
     finally:
         model.env.close()
@@ -78,7 +83,11 @@ def test_a_benchmark_run_trains_and_evaluates_in_the_benchmarks_layout(tmp_path)
     table = result.stdout[result.stdout.index("# DMCGB: DR") :]
     lines = [line for line in table.splitlines() if line.startswith("|")]
     header = [cell.strip() for cell in lines[0].strip("|").split("|")]
-    assert header == ["Task", "train", "color_easy", "color_hard", "video_easy", "video_hard"]
+    # Every test mode runs on a stand-in here (no data_dir, no DAVIS): marked so, and said under the table.
+    intensities = ("0.025", "0.05", "0.1", "0.15", "0.2", "0.3", "0.4", "0.5")
+    modes = ("color_easy", "color_hard", "video_easy", "video_hard", *(f"distracting_cs_{i}" for i in intensities))
+    assert header == ["Task", "train", *(f"{mode} (stand-in)" for mode in modes)]
+    assert "Marked (stand-in): played on sgfd_envs' procedural stand-ins" in table
     assert lines[2].split("|")[1].strip() == "cartpole-swingup"
     assert lines[3].split("|")[1].strip() == "**IQM**"
     iqm_cells = [cell.strip() for cell in lines[3].strip("|").split("|")[1:]]
@@ -86,3 +95,26 @@ def test_a_benchmark_run_trains_and_evaluates_in_the_benchmarks_layout(tmp_path)
     # The quick configuration observes states, which no distraction changes: the same returns in every mode.
     returns = {cell.strip() for cell in lines[2].strip("|").split("|")[1:]}
     assert len(returns) == 1
+
+
+def test_tables_mark_the_splits_played_on_a_stand_in():
+    from sgfd_zoo.evaluate import render_benchmark_tables, render_tables
+
+    # as evaluate writes them (bools) and as they read back from csv (strings)
+    marks = (("train", False), ("video_hard", True), ("color_hard", "False"), ("distracting_cs_0.1", "True"))
+    rows = [
+        {"algo": "sac", "env": "DMCGB/walker-walk-v0", "split": split, "seed": seed, "mean_reward": 100.0 + seed,
+         "stand_in": stand_in}
+        for seed in (0, 1)
+        for split, stand_in in marks
+    ]  # fmt: skip
+    benchmark = render_benchmark_tables(rows, reps=100)
+    header = next(
+        line for line in benchmark.splitlines() if line.startswith("|") and line.split("|")[1].strip() == "Task"
+    )
+    assert [c.strip() for c in header.strip("|").split("|")] == [
+        "Task", "train", "color_hard", "video_hard (stand-in)", "distracting_cs_0.1 (stand-in)"
+    ]  # fmt: skip
+    paper = render_tables(rows)
+    assert "# video_hard (stand-in)" in paper and "# color_hard (mean" in paper
+    assert paper.count("Marked (stand-in)") == 2

@@ -90,7 +90,9 @@ def test_a_model_trained_on_a_gpu_loads_on_the_cpu_and_back(reading, tmp_path):
 def test_the_papers_agent_trains_on_a_gpu_with_every_tensor_there():
     from stable_baselines3.common.vec_env import VecFrameStack, VecTransposeImage
 
-    env = VecTransposeImage(VecFrameStack(sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", image_size=24), 2))
+    env = VecTransposeImage(
+        VecFrameStack(sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", image_size=24, render="fast"), 2)
+    )
     kwargs = dict(representation_kwargs=dict(hidden_dim=16), classifier_start=0, device="cuda", **TINY)
     model = SGFD_SAC(AMBSPolicy, env, representation="ambs", augmentation_views=2, **kwargs)
     model.learn(120)

@@ -12,8 +12,8 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
+from benchmark_methods import interior
 from dm_control import suite
-from dm_control.mujoco import wrapper
 
 from sgfd_envs.backgrounds import (
     PROCEDURAL_SEEDS,
@@ -42,7 +42,7 @@ def start_index(source, observation, background_mask):
 
 
 @pytest.mark.parametrize("env_id", ["SGFD/walker-walk-v0", "SGFD/cheetah-run-v0", "SGFD/finger-turn-v0"])
-def test_compositing_keeps_every_robot_pixel_and_fills_the_rest_with_the_background(env_id):
+def test_compositing_puts_the_background_behind_the_robot_as_a_multisampled_render_would(env_id):
     domain, size = 1, 84
     source = make_background("train", domain, size, size)
     with gym.make(env_id, domain=domain) as env:
@@ -51,26 +51,25 @@ def test_compositing_keeps_every_robot_pixel_and_fills_the_rest_with_the_backgro
         for _ in range(10):
             observation, *_ = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
         physics = env.unwrapped.physics
-        # dm_control's own Camera, an independent render path, with the floor shown again.
-        all_groups = wrapper.MjvOption()
-        all_groups.geomgroup[:] = 1
-        flags = {"shadow": False, "reflection": False}
-        reference = physics.render(size, size, camera_id=0, scene_option=all_groups, render_flag_overrides=flags)
-        segmentation = physics.render(size, size, camera_id=0, scene_option=all_groups, segmentation=True)
-        # The default scene option does not draw the group the env moved the floor to.
-        hidden_floor_segmentation = physics.render(size, size, camera_id=0, segmentation=True)
-        floorless_reference = physics.render(size, size, camera_id=0, render_flag_overrides=flags)
-        robot = (segmentation[..., 0] != -1) & ~plane_pixels(physics, segmentation)
-    assert robot.sum() > 100
-    np.testing.assert_array_equal(observation[robot], reference[robot])
-
-    background = hidden_floor_segmentation[..., 0] == -1
-    assert not np.any(background & robot)
-    assert background.sum() > 0.5 * size * size
-    first = start_index(source, observation, background)
-    np.testing.assert_array_equal(observation[background], source.frame(first)[background])
-    # Every non-background pixel is exactly dm_control's render of the same (floorless) scene.
-    np.testing.assert_array_equal(observation[~background], floorless_reference[~background])
+        # dm_control's own Camera, an independent render path: the env moved the floor to a group the default
+        # scene option does not draw; the skybox off too. What is left is the robot, over black.
+        robot_only = physics.render(size, size, camera_id=0, render_flag_overrides={"skybox": False}).astype(int)
+        segmentation = physics.render(size, size, camera_id=0, segmentation=True)[..., 0]
+    inside, outside = interior(segmentation != -1), interior(segmentation == -1)
+    assert inside.sum() > 50 and outside.sum() > 0.5 * size * size
+    # Where the robot covers the whole pixel it stays exactly as dm_control rendered it (shadows included); the
+    # pixel-centre segmentation misses the odd thin gap that one of the 4 samples sees through.
+    assert np.mean(np.all(observation[inside] == robot_only[inside], axis=-1)) > 0.99
+    first = start_index(source, observation, outside)
+    frame = source.frame(first).astype(int)
+    np.testing.assert_array_equal(observation[outside], frame[outside])
+    # Every pixel is the robot's weighted colour plus (1 - coverage) of the background, coverage a share of the
+    # 4 samples: exactly so where nothing was drawn, within a level of rounding elsewhere.
+    candidates = [robot_only + (4 - k) * frame / 4 for k in range(5)]
+    error = np.min([np.abs(observation - c).max(axis=-1) for c in candidates], axis=0)
+    assert error.max() <= 2.0
+    edges = ~inside & ~outside
+    assert np.any(np.abs(observation[edges] - robot_only[edges]).max(axis=-1) > 10)  # blended, not cut
 
 
 def test_background_starts_at_a_seeded_random_frame_and_advances_one_frame_per_step():
@@ -80,11 +79,11 @@ def test_background_starts_at_a_seeded_random_frame_and_advances_one_frame_per_s
         with gym.make("SGFD/finger-spin-v0", split="test", domain=2, image_size=64) as env:
             observation, _ = env.reset(seed=seed)
             physics = env.unwrapped.physics
-            background = physics.render(64, 64, camera_id=0, segmentation=True)[..., 0] == -1
+            background = interior(physics.render(64, 64, camera_id=0, segmentation=True)[..., 0] == -1)
             first = start_index(source, observation, background)
             for step in range(1, 4):
                 observation, *_ = env.step(np.zeros(2, dtype=np.float32))
-                background = physics.render(64, 64, camera_id=0, segmentation=True)[..., 0] == -1
+                background = interior(physics.render(64, 64, camera_id=0, segmentation=True)[..., 0] == -1)
                 np.testing.assert_array_equal(observation[background], source.frame(first + step)[background])
         starts.append(first)
     assert starts[0] == starts[1] != starts[2]
@@ -192,12 +191,12 @@ def test_flat_video_folder_gives_four_training_sources_and_the_rest_for_testing(
     with gym.make(env_id, split="test", domain=1, background_dir=video_folder, image_size=48) as env:
         observation, _ = env.reset(seed=0)
         physics = env.unwrapped.physics
-        background = physics.render(48, 48, camera_id=0, segmentation=True)[..., 0] == -1
+        background = interior(physics.render(48, 48, camera_id=0, segmentation=True)[..., 0] == -1)
         matches = [t for t, frame in enumerate(expected) if np.array_equal(frame[background], observation[background])]
         assert len(matches) == 1
         for step in range(1, 14):  # past the end of the 12-frame clip: it wraps around
             observation, *_ = env.step(np.zeros(6, dtype=np.float32))
-            background = physics.render(48, 48, camera_id=0, segmentation=True)[..., 0] == -1
+            background = interior(physics.render(48, 48, camera_id=0, segmentation=True)[..., 0] == -1)
             np.testing.assert_array_equal(observation[background], expected[(matches[0] + step) % 12][background])
 
 
@@ -213,7 +212,7 @@ def test_video_frame_budget_and_grayscale(video_folder):
     with gym.make("SGFD/cheetah-run-v0", background_dir=video_folder, grayscale=True, image_size=32) as env:
         observation, _ = env.reset(seed=0)
         physics = env.unwrapped.physics
-        background = physics.render(32, 32, camera_id=0, segmentation=True)[..., 0] == -1
+        background = interior(physics.render(32, 32, camera_id=0, segmentation=True)[..., 0] == -1)
     assert np.array_equal(observation[background][:, 0], observation[background][:, 1])
 
 
@@ -238,7 +237,7 @@ def test_train_test_subfolders_and_images(tmp_path):
     with gym.make("SGFD/finger-spin-v0", split="test", domain=1, background_dir=tmp_path, image_size=40) as env:
         observations = [env.reset(seed=0)[0]] + [env.step(np.zeros(2, dtype=np.float32))[0] for _ in range(3)]
         physics = env.unwrapped.physics
-        background = physics.render(40, 40, camera_id=0, segmentation=True)[..., 0] == -1
+        background = interior(physics.render(40, 40, camera_id=0, segmentation=True)[..., 0] == -1)
     np.testing.assert_array_equal(observations[-1][background], expected[background])
     venv = sgfd_envs.make_domain_vec_env("SGFD/finger-spin-v0", background_dir=tmp_path, image_size=40)
     try:

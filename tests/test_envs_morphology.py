@@ -59,7 +59,7 @@ def test_split_and_domain_pick_the_setting_and_label_the_env(split, domain, sett
         _, info = env.reset(seed=0)
         unwrapped = env.unwrapped
         assert (unwrapped.split, unwrapped.domain, unwrapped.setting) == (split, domain, setting)
-        assert info == {"domain": domain, "setting": setting}
+        assert info == {"domain": domain, "setting": setting, "stand_in": False}
         assert unwrapped.morphology_parameter == "distal_length"
         assert unwrapped.morphology_value == pytest.approx(0.16 * scale("finger", setting))
         # A capsule's compiled size is (radius, half length).
@@ -70,7 +70,7 @@ def test_setting_kwarg_and_split_override():
     with gym.make("SGFD/MT-cheetah-run-v0", setting=7, obs_type="state") as env:
         unwrapped = env.unwrapped
         assert (unwrapped.setting, unwrapped.split, unwrapped.domain, unwrapped.n_domains) == (7, None, 0, 1)
-        assert env.reset(seed=0)[1] == {"domain": 0, "setting": 7}
+        assert env.reset(seed=0)[1] == {"domain": 0, "setting": 7, "stand_in": False}
     with gym.make("SGFD/MT-cheetah-run-v0", domain=2, split_settings={"train": (6, 7, 8)}, obs_type="state") as env:
         assert (env.unwrapped.setting, env.unwrapped.n_domains) == (8, 3)
     with gym.make(

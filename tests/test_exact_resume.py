@@ -26,7 +26,9 @@ def state_env():
 
 
 def pixel_env():
-    return VecTransposeImage(VecFrameStack(sgfd_envs.make_domain_vec_env(ENV_ID, image_size=24, seed=3), 2))
+    return VecTransposeImage(
+        VecFrameStack(sgfd_envs.make_domain_vec_env(ENV_ID, image_size=24, seed=3, render="fast"), 2)
+    )
 
 
 AGENTS = {

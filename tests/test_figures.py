@@ -23,7 +23,7 @@ from sgfd_zoo.runs import RunFolder, find_runs, select_run
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 ENV_NAME = str(EnvironmentName(ENV_ID))
-ENV_KWARGS = {"obs_type": "pixels", "image_size": 32}
+ENV_KWARGS = {"obs_type": "pixels", "image_size": 32, "render": "fast"}
 FRAME_STACK = 2
 
 

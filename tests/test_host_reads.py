@@ -26,7 +26,7 @@ def state_env():
 
 
 def pixel_env():
-    return VecTransposeImage(VecFrameStack(sgfd_envs.make_domain_vec_env(ENV_ID, image_size=24), 2))
+    return VecTransposeImage(VecFrameStack(sgfd_envs.make_domain_vec_env(ENV_ID, image_size=24, render="fast"), 2))
 
 
 def reads(model, gradient_steps: int) -> int:

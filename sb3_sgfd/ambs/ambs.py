@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from collections.abc import Callable
+from typing import Any, ClassVar, cast
 
 import torch as th
+from stable_baselines3.common.preprocessing import get_action_dim
 from stable_baselines3.sac.policies import SACPolicy
 from torch.nn import functional as F
 
@@ -18,6 +20,7 @@ from sb3_sgfd.common.dynamics import (
     gaussian_nll,
 )
 from sb3_sgfd.common.encoder_sac import EncoderSAC
+from sb3_sgfd.common.policies import DetachedEncoderActor
 from sb3_sgfd.common.representation import Agent, Batch, Representation, register, step
 from sb3_sgfd.common.validation import check_choice, check_non_negative
 
@@ -96,7 +99,7 @@ class AMBSRepresentation(Representation):
         if not self.adaptive_ratio:
             encoder.ratio.requires_grad_(False)
         reward_dim, dynamics_dim = encoder.reward_dim, encoder.features_dim - encoder.reward_dim
-        action_dim = model.action_space.shape[0]
+        action_dim = get_action_dim(model.action_space)
         self.transition = TRANSITION_MODELS[self.transition_kind](dynamics_dim, action_dim, self.hidden_dim)
         self.reward_decoder = RewardDecoder(dynamics_dim, self.hidden_dim)
         decoders: list[th.nn.Module] = [self.transition, self.reward_decoder]
@@ -128,11 +131,13 @@ class AMBSRepresentation(Representation):
         with th.no_grad():
             next_h = encoder.embed(model.preprocess(batch.next_observations[0]))
             # the actor reads these features (scaled by the ratio): no second pass of the encoder
-            actor_actions = model.actor.action_of_features(encoder.scaled(h), deterministic=True)
+            actor = cast(DetachedEncoderActor, model.actor)  # SGFDPolicy's, as EncoderSAC requires with an objective
+            actor_actions = actor.action_of_features(encoder.scaled(h), deterministic=True)
             h_dynamics = split_halves(h, encoder.reward_dim)[1]
             predicted = self.transition(h_dynamics, actor_actions)
         perm = th.randperm(len(h), generator=self.generator, device=self.generator.device).to(h.device)
-        metric_loss = ambs_metric_loss_code if self.metric == "code" else ambs_metric_loss
+        # Callable[...]: the paper's form takes the meta-learners as not None (__init__ ensures it for that form)
+        metric_loss: Callable[..., th.Tensor] = ambs_metric_loss_code if self.metric == "code" else ambs_metric_loss
         metric = metric_loss(
             h,
             aug_h,

@@ -3,9 +3,10 @@ a reward half and a dynamics half, scaled by a learned ratio."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
@@ -21,19 +22,29 @@ class AMBSEncoder(BaseFeaturesExtractor):
     :param observation_space: Image (channel-first) or flat observation space
     :param features_dim: Size of the latent vector z
     :param reward_dim: Features of the reward part (AMBS: half of them)
+    :param normalized_image: The images are already scaled (the policy's ``normalize_images=False`` sets it)
     :param encoder_kwargs: Arguments of the trunk, :class:`PixelEncoder` for images, :class:`MlpEncoder` else
     """
 
     def __init__(
-        self, observation_space: spaces.Box, features_dim: int = 50, reward_dim: int | None = None, **encoder_kwargs
+        self,
+        observation_space: spaces.Box,
+        features_dim: int = 50,
+        reward_dim: int | None = None,
+        normalized_image: bool = False,
+        **encoder_kwargs: Any,
     ) -> None:
         super().__init__(observation_space, features_dim)
         reward_dim = features_dim // 2 if reward_dim is None else reward_dim
         if not 0 < reward_dim < features_dim:
             raise ValueError(f"reward_dim must be in 1..{features_dim - 1}, got {reward_dim}")
         self.reward_dim = reward_dim
-        trunk = PixelEncoder if is_image_space(observation_space) else MlpEncoder
-        self.trunk = trunk(observation_space, features_dim, **encoder_kwargs)
+        if len(observation_space.shape) == 3:  # images (PixelEncoder checks that they are)
+            self.trunk: nn.Module = PixelEncoder(
+                observation_space, features_dim, normalized_image=normalized_image, **encoder_kwargs
+            )
+        else:
+            self.trunk = MlpEncoder(observation_space, features_dim, **encoder_kwargs)
         # (0, 0): c = 1 - c = 0.5 at the start, as AMBS
         self.ratio = nn.Parameter(th.zeros(2))
 

@@ -17,9 +17,10 @@ bit for bit (tested).
 
 from __future__ import annotations
 
+import warnings
 from collections import defaultdict
 from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 
 import numpy as np
 import torch as th
@@ -33,14 +34,15 @@ from stable_baselines3.sac import SAC
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_sgfd.common.augmentation import random_shift
+from sb3_sgfd.common.buffer_setup import N_STEPS_IGNORED_WARNING, DomainBufferMixin
 from sb3_sgfd.common.buffers import DomainReplayBuffer
-from sb3_sgfd.common.policies import CnnPolicy, EncoderMlpPolicy, MlpPolicy, SGFDPolicy
+from sb3_sgfd.common.policies import CnnPolicy, EncoderMlpPolicy, MlpPolicy, MultiInputPolicy, SGFDPolicy
 from sb3_sgfd.common.representation import REPRESENTATIONS, Batch, Representation, make_representation
 from sb3_sgfd.common.utils import finite, means_of, polyak_pairs, weighted_mean
 from sb3_sgfd.common.validation import check_encoder_sac_arguments, check_sac_arguments
 
 
-class EncoderSAC(SAC):
+class EncoderSAC(DomainBufferMixin, SAC):
     """
     SAC with a critic-trained shared encoder, augmentation, an encoder target, and the hooks an encoder
     objective (``representation``) and a sample weighting need. Takes the arguments of SB3's :class:`SAC`
@@ -69,6 +71,7 @@ class EncoderSAC(SAC):
         "CnnPolicy": CnnPolicy,
         "SGFDPolicy": SGFDPolicy,
         "EncoderMlpPolicy": EncoderMlpPolicy,
+        "MultiInputPolicy": MultiInputPolicy,
     }
     #: The objective subclasses train; None: any (or none).
     fixed_representation: ClassVar[str | None] = None
@@ -91,6 +94,7 @@ class EncoderSAC(SAC):
         replay_buffer_class: type[ReplayBuffer] | None = DomainReplayBuffer,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         optimize_memory_usage: bool = False,
+        n_steps: int = 1,
         ent_coef: str | float = "auto",
         target_update_interval: int = 1,
         target_entropy: str | float = "auto",
@@ -115,8 +119,9 @@ class EncoderSAC(SAC):
         actor_reuses_features: bool = True,
         _init_setup_model: bool = True,
     ):
+        # the objective checks its own arguments when it is built (in _setup_model: SB3's load builds no objective here)
         arguments = {name: value for name, value in locals().items() if name not in ("self", "policy", "env")}
-        EncoderSAC.check_arguments({**arguments, "representation": representation})
+        EncoderSAC.check_arguments({k: v for k, v in arguments.items() if not k.startswith("representation")})
         if self.fixed_representation is not None and representation != self.fixed_representation:
             raise ValueError(
                 f"{type(self).__name__} trains the {self.fixed_representation!r} representation, got "
@@ -147,6 +152,7 @@ class EncoderSAC(SAC):
             replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,
+            n_steps=n_steps,
             ent_coef=ent_coef,
             target_update_interval=target_update_interval,
             target_entropy=target_entropy,
@@ -183,20 +189,15 @@ class EncoderSAC(SAC):
     def _setup_model(self) -> None:
         # SB3 builds the replay buffer in super()._setup_model(): the objective's needs go in first.
         representation_model = make_representation(self.representation, self.representation_kwargs)
-        buffer_class = self.replay_buffer_class
-        domain_buffer = buffer_class is not None and issubclass(buffer_class, DomainReplayBuffer)
-        if representation_model is not None and representation_model.needs_same_episode:
-            if not domain_buffer:
-                raise ValueError(f"the {self.representation!r} representation needs a DomainReplayBuffer")
-            self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "same_episode_negatives": True}
-        if domain_buffer and self.env is not None and "n_domains" not in self.replay_buffer_kwargs:
-            # so that a label outside the envs' domains is refused where it enters
-            self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "n_domains": self._domain_count()}
-        super()._setup_model()
+        self._prepare_replay_buffer(representation_model)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=N_STEPS_IGNORED_WARNING, category=UserWarning)
+            super()._setup_model()
         if self.ent_coef_optimizer is not None and (self.ent_coef_lr is not None or self.ent_coef_beta != 0.9):
             lr = self.lr_schedule(1) if self.ent_coef_lr is None else self.ent_coef_lr
-            self.ent_coef_optimizer = th.optim.Adam([self.log_ent_coef], lr=lr, betas=(self.ent_coef_beta, 0.999))
-        if self.augmentation_views and not is_image_space(self.observation_space):
+            self.ent_coef_optimizer = th.optim.Adam([self.log_ent_coef], lr=lr, betas=(self.ent_coef_beta, 0.999))  # type: ignore[arg-type]  # not None with the optimizer
+        scaled = not self.policy.normalize_images
+        if self.augmentation_views and not is_image_space(self.observation_space, normalized_image=scaled):
             raise ValueError(
                 f"augmentation_views={self.augmentation_views} shifts images, but the observations are "
                 f"{self.observation_space}; use augmentation_views=0 on states"
@@ -226,15 +227,7 @@ class EncoderSAC(SAC):
                 representation_model.setup(self)
             representation_model.to(self.device)
         self._encoder_pairs, self._head_pairs = self._target_pairs()
-
-    def _domain_count(self) -> int:
-        """The number of domain labels of the envs: their largest ``n_domains`` attribute, or the number of
-        sub-envs if they have none (SGFD_SAC's ``n_domains`` overrides it)."""
-        try:
-            counts = self.env.get_attr("n_domains")  # type: ignore[union-attr]
-        except AttributeError:
-            return self.env.num_envs  # type: ignore[union-attr]
-        return max(int(count) for count in counts)
+        self._adopt_env_domains()
 
     def _derived_seeds(self) -> dict[str, int]:
         """Seeds of the generators the additions to SAC draw from, all from the model's seed: one stream,
@@ -245,7 +238,7 @@ class EncoderSAC(SAC):
     def _target_pairs(self) -> tuple[list[tuple[th.Tensor, th.Tensor]], list[tuple[th.Tensor, th.Tensor]]]:
         """(online, target) parameters of the critic's encoder and of its heads, for the soft updates."""
         targets = dict(self.critic_target.named_parameters())
-        encoder, heads = [], []
+        encoder, heads = [], []  # type: list[tuple[th.Tensor, th.Tensor]], list[tuple[th.Tensor, th.Tensor]]
         for name, param in self.critic.named_parameters():
             (encoder if name.startswith("features_extractor.") else heads).append((param, targets[name]))
         return encoder, heads
@@ -380,8 +373,8 @@ class EncoderSAC(SAC):
         self.logger.record("train/critic_loss", np.mean(critic_losses))
         if len(ent_coef_losses) > 0:
             self.logger.record("train/ent_coef_loss", np.mean(ent_coef_losses))
-        for key, value in zip(self._stats, means_of(self._stats.values(), self.device), strict=True):  # + one read
-            self.logger.record(key, value)
+        for key, mean in zip(self._stats, means_of(self._stats.values(), self.device), strict=True):  # + one read
+            self.logger.record(key, mean)
 
     def _target_q_values(
         self, next_observations: th.Tensor, replay_data: Any, ent_coef: th.Tensor, discounts: th.Tensor | float
@@ -439,7 +432,7 @@ class EncoderSAC(SAC):
         """The actor's actions and their log-probabilities for the batch, from the critic's features z of it when
         the actor reads the critic's encoder (the same values SB3's actor computes, without a second pass)."""
         if self._actor_reads_critic_features:
-            return self.actor.action_log_prob_of_features(z)  # type: ignore[attr-defined]
+            return cast(SGFDPolicy, self.policy).actor.action_log_prob_of_features(z)  # self.actor is its actor
         return self.actor.action_log_prob(observations)
 
     def _actor_q_values(self, observations: th.Tensor, z: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
@@ -465,7 +458,7 @@ class EncoderSAC(SAC):
 
     def preprocess(self, observations: th.Tensor) -> th.Tensor:
         """Observations as the buffer returns them, as the encoder takes them (SB3's ``preprocess_obs``)."""
-        return preprocess_obs(observations, self.observation_space, normalize_images=self.policy.normalize_images)
+        return cast(th.Tensor, preprocess_obs(observations, self.observation_space, self.policy.normalize_images))
 
     def encode(self, observations: th.Tensor) -> th.Tensor:
         """The critic's encoder features z of a batch of observations (as the buffer returns them), without gradient."""

@@ -9,6 +9,7 @@ the actor reads detached features. These policies are plain ``SACPolicy`` subcla
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
 import numpy as np
@@ -16,7 +17,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.distributions import SquashedDiagGaussianDistribution
 from stable_baselines3.common.preprocessing import is_image_space
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, CombinedExtractor, FlattenExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from stable_baselines3.sac.policies import LOG_STD_MAX, LOG_STD_MIN, Actor, SACPolicy
 from torch import nn
@@ -33,12 +34,25 @@ class PixelEncoder(BaseFeaturesExtractor):
     :param features_dim: Size of the latent vector z (paper: 50)
     :param n_layers: Number of convolutional layers (paper: 4)
     :param n_filters: Channels of every convolutional layer (paper: 32)
+    :param normalized_image: The images are already scaled (floats, e.g. after ``VecNormalize``): the policy's
+        ``normalize_images=False`` sets it, as SB3's for its ``NatureCNN``
     """
 
     def __init__(
-        self, observation_space: spaces.Box, features_dim: int = 50, n_layers: int = 4, n_filters: int = 32
+        self,
+        observation_space: spaces.Box,
+        features_dim: int = 50,
+        n_layers: int = 4,
+        n_filters: int = 32,
+        normalized_image: bool = False,
     ) -> None:
         super().__init__(observation_space, features_dim)
+        if not is_image_space(observation_space, check_channels=False, normalized_image=normalized_image):
+            raise ValueError(
+                f"PixelEncoder reads channel-first uint8 images in [0, 255], got {observation_space}; for states use "
+                "MlpPolicy, for Dict observations MultiInputPolicy, and for images already scaled (floats, e.g. "
+                "after VecNormalize) pass policy_kwargs=dict(normalize_images=False)"
+            )
         if n_layers < 1:
             raise ValueError(f"n_layers must be >= 1, got {n_layers}")
         n_channels = observation_space.shape[0]
@@ -142,6 +156,7 @@ class SGFDPolicy(SACPolicy):
     """
 
     default_features_extractor_class: type[BaseFeaturesExtractor] | None = None
+    actor: DetachedEncoderActor
 
     def __init__(
         self,
@@ -161,6 +176,10 @@ class SGFDPolicy(SACPolicy):
             features_extractor_class = self.default_features_extractor_class or (
                 PixelEncoder if is_image_space(observation_space) else FlattenExtractor
             )
+        extractor_kwargs = kwargs.get("features_extractor_kwargs") or {}
+        if kwargs.get("normalize_images", True) is False and reads_images(features_extractor_class):
+            # as SB3 does for its NatureCNN: the encoder then takes images that are already scaled
+            kwargs["features_extractor_kwargs"] = {**extractor_kwargs, "normalized_image": True}
         super().__init__(
             observation_space,
             action_space,
@@ -193,7 +212,7 @@ class SGFDPolicy(SACPolicy):
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.set_training_mode(False)
 
-    def make_actor(self, features_extractor: BaseFeaturesExtractor | None = None) -> Actor:
+    def make_actor(self, features_extractor: BaseFeaturesExtractor | None = None) -> DetachedEncoderActor:
         actor_kwargs = self._update_features_extractor(self.actor_kwargs, features_extractor)
         return DetachedEncoderActor(**actor_kwargs).to(self.device)
 
@@ -210,7 +229,19 @@ class MlpPolicy(SGFDPolicy):
     default_features_extractor_class = FlattenExtractor
 
 
+class MultiInputPolicy(SGFDPolicy):
+    """:class:`SGFDPolicy` on Dict observations through SB3's ``CombinedExtractor`` (its images through NatureCNN,
+    the rest flattened)."""
+
+    default_features_extractor_class = CombinedExtractor
+
+
 class EncoderMlpPolicy(SGFDPolicy):
     """:class:`SGFDPolicy` on flat observations through a learned :class:`MlpEncoder` (for the objectives)."""
 
     default_features_extractor_class = MlpEncoder
+
+
+def reads_images(extractor_class: type[BaseFeaturesExtractor]) -> bool:
+    """Whether an encoder class takes SB3's ``normalized_image`` (it reads images, and checks that they are)."""
+    return "normalized_image" in inspect.signature(extractor_class.__init__).parameters

@@ -20,10 +20,8 @@ from typing import Any, ClassVar, NamedTuple, Protocol
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import ContinuousCritic
-from stable_baselines3.sac.policies import SACPolicy
+from stable_baselines3.sac.policies import Actor, SACPolicy
 from torch import nn
-
-from sb3_sgfd.common.policies import DetachedEncoderActor
 
 
 class Agent(Protocol):
@@ -32,9 +30,10 @@ class Agent(Protocol):
     #: the critic: its encoder (``features_extractor``, shared with the actor) and Q heads
     critic: ContinuousCritic
     critic_target: ContinuousCritic
-    actor: DetachedEncoderActor
+    #: the actor: a DetachedEncoderActor whenever an objective runs (EncoderSAC then requires an SGFDPolicy)
+    actor: Actor
     observation_space: spaces.Space
-    action_space: spaces.Box
+    action_space: spaces.Space
     gamma: float
     augmentation_views: int
     augmentation_pad: int
@@ -81,6 +80,8 @@ class Representation(nn.Module):
     needs_same_episode: ClassVar[bool] = False
     #: The usual policy names mapped to the policies this objective trains (``AMBS("CnnPolicy", env)``).
     policy_aliases: ClassVar[dict[str, type[SACPolicy]]] = {}
+    #: The objective's own random stream, seeded from the model's seed by ``EncoderSAC`` before ``setup``.
+    generator: th.Generator
 
     def setup(self, model: Agent) -> None:
         """Build the models and optimisers once the SAC model exists.

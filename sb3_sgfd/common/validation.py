@@ -101,8 +101,8 @@ def _train_freq(name: str, value: Any) -> None:
 
 
 def _gradient_steps(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not (value >= 1 or value == -1):
-        raise ValueError(f"{name} must be an int >= 1, or -1 (as many as env steps were collected), got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not (value >= 0 or value == -1):
+        raise ValueError(f"{name} must be an int >= 0, or -1 (as many as env steps were collected), got {value!r}")
 
 
 def _ent_coef(name: str, value: Any) -> None:
@@ -139,7 +139,7 @@ SAC_ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
     "buffer_size": lambda name, value: check_positive_int(**{name: value}),
     "learning_starts": lambda name, value: check_non_negative_int(**{name: value}),
     "batch_size": lambda name, value: check_positive_int(**{name: value}),
-    "tau": lambda name, value: check_interval(name, value, 0.0, 1.0, low_open=True),
+    "tau": lambda name, value: check_interval(name, value, 0.0, 1.0),
     "gamma": lambda name, value: check_interval(name, value, 0.0, 1.0),
     "train_freq": _train_freq,
     "gradient_steps": _gradient_steps,
@@ -170,12 +170,17 @@ def _optional_positive(name: str, value: Any) -> None:
         check_positive(**{name: value})
 
 
+def _optional_rate(name: str, value: Any) -> None:
+    if value is not None:
+        check_interval(name, value, 0.0, 1.0, low_open=True)
+
+
 #: The arguments EncoderSAC adds to SAC's, and their checks
 ENCODER_SAC_ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
     "actor_update_interval": lambda name, value: check_positive_int(**{name: value}),
     "augmentation_views": _augmentation_views,
     "augmentation_pad": lambda name, value: check_non_negative_int(**{name: value}),
-    "encoder_tau": lambda name, value: value is None or check_interval(name, value, 0.0, 1.0, low_open=True),
+    "encoder_tau": _optional_rate,
     "max_grad_norm": _optional_positive,
     "ent_coef_lr": _optional_positive,
     "ent_coef_beta": lambda name, value: check_interval(name, value, 0.0, 1.0, high_open=True),

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import torch as th
+from stable_baselines3.common.preprocessing import get_action_dim
 from stable_baselines3.sac.policies import SACPolicy
 from torch.nn import functional as F
 
@@ -16,7 +18,10 @@ from sb3_sgfd.common.validation import check_choice, check_non_negative
 from sb3_sgfd.dbc.losses import bisimulation_loss, bisimulation_loss_code
 
 #: DBC's metric forms (``DBCRepresentation(metric=...)``): its authors' code's, and its paper's.
-DBC_METRICS = {"code": bisimulation_loss_code, "paper": bisimulation_loss}
+DBC_METRICS: dict[str, Callable[[th.Tensor, th.Tensor, th.Tensor, th.Tensor, th.Tensor, float], th.Tensor]] = {
+    "code": bisimulation_loss_code,
+    "paper": bisimulation_loss,
+}
 
 
 @register("dbc")
@@ -63,7 +68,7 @@ class DBCRepresentation(Representation):
 
     def setup(self, model: Agent) -> None:
         features_dim = model.critic.features_extractor.features_dim
-        action_dim = model.action_space.shape[0]
+        action_dim = get_action_dim(model.action_space)
         self.transition = ProbabilisticTransitionModel(features_dim, action_dim, self.hidden_dim)
         self.reward_decoder = RewardDecoder(features_dim, self.hidden_dim)
         self.encoder_optimizer = th.optim.Adam(model.critic.features_extractor.parameters(), lr=self.encoder_lr)
@@ -79,7 +84,7 @@ class DBCRepresentation(Representation):
         z = critic.extract_features(batch.observations[0], critic.features_extractor)
         with th.no_grad():
             next_z = critic.extract_features(batch.next_observations[0], critic.features_extractor)
-            predicted = self.transition(z, data.actions)
+            predicted: tuple[th.Tensor, th.Tensor] = self.transition(z, data.actions)
         perm = th.randperm(len(z), generator=self.generator, device=self.generator.device).to(z.device)
         bisim = DBC_METRICS[self.metric](z, data.rewards, *predicted, perm, model.gamma)
         mu, sigma = self.transition(z, data.actions)

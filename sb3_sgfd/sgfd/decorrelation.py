@@ -11,10 +11,12 @@ Pure torch, no Stable-Baselines3 import. Read top to bottom next to the paper:
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
+from sb3_sgfd.common.tensor_state import TensorStateModule
 from sb3_sgfd.common.validation import check_batch, check_choice, check_max_step, check_probs, check_weights
 
 COVARIANCES = ("weighted", "literal")
@@ -100,14 +102,14 @@ def decorrelation_loss(
     return _decorrelation_loss(rff.reshape(n, d * m), weights.to(rff), pair_weights, covariance)
 
 
-class WeightMemory(nn.Module):
+class WeightMemory(TensorStateModule):
     """Features and weight logits of past batches, which the solver decorrelates the current batch against.
 
     The official SGFD code (after StableNet) keeps one batch-sized memory: the loss is taken over the current
     batch and the memory together (its logits fixed), then the memory moves towards the current batch,
     ``memory = momentum * memory + (1 - momentum) * current`` (a running mean for its first
     ``1 / (1 - momentum)`` updates). The paper does not mention it; ``bench/decorrelation.py`` measures it.
-    A module whose state is its extra state, so that it is saved through torch (``map_location`` moves it).
+    Its state (the remembered features and logits, the update count) is saved in its state dict as tensors.
 
     :param momentum: Weight of the memory in its update, in [0, 1)
     """
@@ -135,19 +137,24 @@ class WeightMemory(nn.Module):
         if not self.remembers(features):
             self.features, self.logits, self.updates = features.clone(), logits.clone(), 0
         else:
+            assert self.features is not None and self.logits is not None  # remembers() says so
             # A running mean first, so that the start does not linger.
             keep = min(self.momentum, self.updates / (self.updates + 1))
             self.features = keep * self.features + (1 - keep) * features
             self.logits = keep * self.logits + (1 - keep) * logits
         self.updates += 1
 
-    def get_extra_state(self) -> dict[str, object]:
-        return {"momentum": self.momentum, "features": self.features, "logits": self.logits, "updates": self.updates}
+    def state_tensors(self) -> dict[str, Tensor]:
+        if self.features is None or self.logits is None:
+            return {}
+        return {"features": self.features, "logits": self.logits, "updates": torch.tensor(float(self.updates))}
 
-    def set_extra_state(self, state: dict[str, object]) -> None:
-        self.momentum = float(state["momentum"])  # type: ignore[arg-type]
-        self.features, self.logits = state["features"], state["logits"]  # type: ignore[assignment]
-        self.updates = int(state["updates"])  # type: ignore[arg-type]
+    def load_state_tensors(self, tensors: dict[str, Tensor]) -> None:
+        self.features, self.logits = tensors.get("features"), tensors.get("logits")
+        self.updates = int(tensors["updates"]) if "updates" in tensors else 0
+
+    def load_legacy_state(self, state: dict[str, Any]) -> None:
+        self.features, self.logits, self.updates = state["features"], state["logits"], int(state["updates"])
 
     def _apply(self, fn, recurse=True):  # type: ignore[no-untyped-def]
         # .to(device) moves the remembered tensors, which are not parameters or buffers.

@@ -28,6 +28,7 @@ alone (one solve of a run). Gradients are in closed form (the tests compare them
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import torch
 from torch import Tensor, nn
@@ -79,7 +80,7 @@ class OfficialClassifier(nn.Module):
         """Guided backpropagation of each class's probability to z, averaged over the classes: (n, d), without
         grad. Through a ReLU the gradient passes where the unit was active and the gradient is positive (Springenberg
         et al.); in closed form for this network (the tests compare it with autograd through guided ReLUs)."""
-        first, _, second, _, last = self.net
+        first, second, last = (cast(nn.Linear, self.net[index]) for index in (0, 2, 4))
         with torch.no_grad():
             pre1 = first(z)
             pre2 = second(pre1.clamp_min(0))
@@ -224,6 +225,8 @@ class OfficialWeighting(SampleWeighting):
     :param device: where the classifier and the generators live
     """
 
+    classifier: OfficialClassifier
+
     def __init__(
         self,
         n_features: int,
@@ -236,16 +239,7 @@ class OfficialWeighting(SampleWeighting):
         self.settings = settings
         # the threshold in use: a benchmark or test pins the classifier's phase by moving it
         self.accuracy_threshold = settings.accuracy_threshold
-        self.solver_settings = {
-            "n_rff": settings.n_rff,
-            "iters": settings.reweight_iters,
-            "lr": settings.reweight_lr,
-            "momentum": settings.reweight_momentum,
-            "weight_decay": settings.reweight_weight_decay,
-            "ess_penalty": settings.reweight_ess_penalty,
-            "max_step": settings.reweight_max_step,
-            "use_rff": settings.use_rff,
-        }
+        self.solver_settings = settings.solver_settings()
         self.seed = seed
         self.classifier = OfficialClassifier(n_features, max(n_domains, 2), settings.classifier_hidden_dim).to(device)
         self.classifier_optimizer = torch.optim.SGD(
@@ -254,7 +248,7 @@ class OfficialWeighting(SampleWeighting):
         self.memory = None if settings.reweight_memory is None else WeightMemory(settings.reweight_memory)
         self.rff_generator = torch.Generator(device=device)
 
-    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:  # type: ignore[override]
+    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:
         with torch.no_grad():
             accuracy = _accuracy(self.classifier(z).argmax(dim=1), domains)
         classifier_round = (

@@ -47,6 +47,8 @@ class PaperWeighting(SampleWeighting):
     :param device: where the classifier and the generators live
     """
 
+    classifier: DomainClassifier
+
     def __init__(
         self,
         n_features: int,
@@ -59,16 +61,7 @@ class PaperWeighting(SampleWeighting):
         self.settings = settings
         # the threshold in use: a benchmark or test pins the classifier's phase by moving it
         self.accuracy_threshold = settings.accuracy_threshold
-        self.solver_settings = {
-            "n_rff": settings.n_rff,
-            "iters": settings.reweight_iters,
-            "lr": settings.reweight_lr,
-            "momentum": settings.reweight_momentum,
-            "weight_decay": settings.reweight_weight_decay,
-            "ess_penalty": settings.reweight_ess_penalty,
-            "max_step": settings.reweight_max_step,
-            "use_rff": settings.use_rff,
-        }
+        self.solver_settings = settings.solver_settings()
         self.seed = seed
         self.classifier = DomainClassifier(n_features, max(n_domains, 2), settings.classifier_hidden_dim).to(device)
         # Fused: one kernel for all six parameters instead of a dozen small ops each (a fifth of a classifier step).
@@ -83,7 +76,7 @@ class PaperWeighting(SampleWeighting):
     def active(self, num_timesteps: int) -> bool:
         return num_timesteps >= self.settings.classifier_start
 
-    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:  # type: ignore[override]
+    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:
         # Once ready, one pass of the classifier scores the batch and gives p(Z_i); on a step where the
         # classifier then also trains, the weights use that p (Algorithm 1 takes it after the classifier's step).
         probs, accuracy = None, None
@@ -146,8 +139,11 @@ class PaperWeighting(SampleWeighting):
         for _ in range(self.settings.classifier_iters - 1):
             yield fresh_features(batch_size, True)
 
-    def get_extra_state(self) -> dict[str, Any]:
-        return {"ready": self.ready}
+    def state_tensors(self) -> dict[str, Tensor]:
+        return {"ready": torch.tensor(float(self.ready))}
 
-    def set_extra_state(self, state: dict[str, Any]) -> None:
+    def load_state_tensors(self, tensors: dict[str, Tensor]) -> None:
+        self.ready = bool(tensors["ready"])
+
+    def load_legacy_state(self, state: dict[str, Any]) -> None:
         self.ready = bool(state["ready"])

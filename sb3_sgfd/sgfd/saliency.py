@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import cast
 
 import torch
 from torch import Tensor, nn
@@ -55,7 +56,7 @@ class DomainClassifier(nn.Module):
 
     def predictions_and_input_gradient(self, z: Tensor, domains: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """The predicted domains (n,) and ``input_gradient``, from one forward pass."""
-        first, _, second, _, last = self.net
+        first, second, last = (cast(nn.Linear, self.net[index]) for index in (0, 2, 4))
         with torch.no_grad():
             h1 = first(z).clamp_min(0)
             h2 = second(h1).clamp_min(0)

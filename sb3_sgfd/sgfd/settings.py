@@ -9,7 +9,7 @@ numbers). A new setting is a field here (with its line in the docstring) and a k
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
-from typing import Any
+from typing import Any, TypedDict
 
 from sb3_sgfd.common.validation import (
     check_bool,
@@ -172,6 +172,32 @@ class SGFDSettings:
     def as_dict(self) -> dict[str, Any]:
         """The settings by name, ``reading`` included."""
         return asdict(self)
+
+    def solver_settings(self) -> SolverSettings:
+        """The weight solver's keywords (both readings' solvers take them), in a new dict."""
+        return {
+            "n_rff": self.n_rff,
+            "iters": self.reweight_iters,
+            "lr": self.reweight_lr,
+            "momentum": self.reweight_momentum,
+            "weight_decay": self.reweight_weight_decay,
+            "ess_penalty": self.reweight_ess_penalty,
+            "max_step": self.reweight_max_step,
+            "use_rff": self.use_rff,
+        }
+
+
+class SolverSettings(TypedDict):
+    """The keywords of the readings' weight solvers that the settings give (:meth:`SGFDSettings.solver_settings`)."""
+
+    n_rff: int
+    iters: int
+    lr: float
+    momentum: float
+    weight_decay: float
+    ess_penalty: float
+    max_step: float | None
+    use_rff: bool
 
 
 def setting_names() -> list[str]:

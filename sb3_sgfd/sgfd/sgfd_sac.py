@@ -12,15 +12,16 @@ from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.sac.policies import SACPolicy
 
+from sb3_sgfd.common.buffer_setup import DOMAIN_BUFFERS
 from sb3_sgfd.common.buffers import DomainReplayBuffer, DomainReplayBufferSamples
 from sb3_sgfd.common.encoder_sac import EncoderSAC
 from sb3_sgfd.sgfd.official_reading import OfficialWeighting
 from sb3_sgfd.sgfd.paper_reading import PaperWeighting
 from sb3_sgfd.sgfd.settings import SGFDSettings, setting_names
-from sb3_sgfd.sgfd.weighting import SampleWeighting, Step
+from sb3_sgfd.sgfd.weighting import SampleWeighting, Step, WeightingFactory
 
 #: The weighting of each reading (``SGFDSettings.reading``): the paper's text, and what the authors' code computes.
-WEIGHTINGS: dict[str, type[SampleWeighting]] = {"paper": PaperWeighting, "official": OfficialWeighting}
+WEIGHTINGS: dict[str, WeightingFactory] = {"paper": PaperWeighting, "official": OfficialWeighting}
 
 _SINGLE_DOMAIN_WARNING = (
     "SGFD_SAC sees a single domain, so there is nothing to decorrelate; it trains as plain SAC. Give it "
@@ -80,6 +81,7 @@ class SGFD_SAC(EncoderSAC):
         replay_buffer_class: type[ReplayBuffer] | None = DomainReplayBuffer,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         optimize_memory_usage: bool = False,
+        n_steps: int = 1,
         ent_coef: str | float = "auto",
         target_update_interval: int = 1,
         target_entropy: str | float = "auto",
@@ -142,12 +144,14 @@ class SGFD_SAC(EncoderSAC):
             self.sgfd = SGFDSettings.of_reading(
                 reading or "paper", **{k: v for k, v in given.items() if k != "reading"}
             )
-        if replay_buffer_class is None or not issubclass(replay_buffer_class, DomainReplayBuffer):
+        if replay_buffer_class is None or not issubclass(replay_buffer_class, DOMAIN_BUFFERS):
             raise ValueError(
                 "replay_buffer_class must be DomainReplayBuffer or a subclass (SGFD needs the domain "
                 f"label of every transition), got {replay_buffer_class}"
             )
         self.n_domains = n_domains
+        # given: a promise about the labels (none beyond it); else counted from the envs, and recounted on load
+        self._n_domains_given = n_domains is not None
         self.single_domain = False
         self._domains_checked = False
         self.rff_seed: int | None = None
@@ -166,6 +170,7 @@ class SGFD_SAC(EncoderSAC):
             replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,
+            n_steps=n_steps,
             ent_coef=ent_coef,
             target_update_interval=target_update_interval,
             target_entropy=target_entropy,
@@ -202,9 +207,10 @@ class SGFD_SAC(EncoderSAC):
     def _setup_model(self) -> None:
         self._adopt_saved_settings()
         if self.n_domains is None:
-            self.n_domains = self._domain_count() if self.env is not None else None
+            self.n_domains = self._env_domain_count() if self.env is not None else None
         if self.n_domains is None or self.n_domains < 1:
             raise ValueError(f"n_domains must be a positive integer, got {self.n_domains}")
+        self._adopt_env_domains()
         super()._setup_model()
         if self.n_domains == 1 and not self.single_domain:
             warnings.warn(_SINGLE_DOMAIN_WARNING, stacklevel=2)
@@ -213,16 +219,30 @@ class SGFD_SAC(EncoderSAC):
         # a checkpoint needs to continue the same sequence.
         if self.rff_seed is None:
             self.rff_seed = self._derived_seeds()["reweighting"]
+        self.weighting = self._new_weighting()
+
+    def _new_weighting(self) -> SampleWeighting:
+        """The reading's weighting with a fresh classifier for ``n_domains`` labels."""
         # A forked RNG: SGFD's additions must not shift the random streams SAC draws from, so that with
         # w = 1 this is SAC to the last bit under the same seed.
         with th.random.fork_rng(devices=[]):
-            self.weighting = WEIGHTINGS[self.sgfd.reading](
+            return WEIGHTINGS[self.sgfd.reading](
                 self.critic.features_extractor.features_dim,
-                self.n_domains,
+                self.n_domains,  # type: ignore[arg-type]
                 self.sgfd,
-                seed=self.rff_seed,
+                seed=self.rff_seed,  # type: ignore[arg-type]
                 device=self.device,
             )
+
+    def set_parameters(
+        self, load_path_or_dict: str | dict[str, Any], exact_match: bool = True, device: th.device | str = "auto"
+    ) -> None:
+        if getattr(self, "_saved_weighting_replaced", False) and isinstance(load_path_or_dict, dict):
+            # loaded onto more domains than its untrained classifier had classes: the fresh weighting stays
+            self._saved_weighting_replaced = False
+            load_path_or_dict = {k: v for k, v in load_path_or_dict.items() if not k.startswith("weighting")}
+            exact_match = False
+        super().set_parameters(load_path_or_dict, exact_match=exact_match, device=device)
 
     def _adopt_saved_settings(self) -> None:
         """A model saved by version 0.1.0 holds SGFD's settings as attributes of their own: gather them into
@@ -294,6 +314,29 @@ class SGFD_SAC(EncoderSAC):
     def _domain_count(self) -> int:
         return self.n_domains if self.n_domains is not None else super()._domain_count()
 
+    def _adopt_env_domains(self) -> None:
+        """Envs with more domain labels than this model was built for (a model loaded onto more sub-envs of a plain
+        env, labelled by their index) are taken while its classifier has a class for each, or has never trained
+        (single domain, or before ``classifier_start``: SGFD then starts afresh on the new labels); refused in one
+        line otherwise. An ``n_domains`` given when the model was made stays: the buffer refuses a label beyond it."""
+        count = self._env_domain_count() if self.env is not None else 0
+        given = getattr(self, "_n_domains_given", False)  # a model saved by 0.1.0 counted them
+        if self.n_domains is not None and count > self.n_domains and not given:
+            untrained = self.single_domain or self.num_timesteps < self.sgfd.classifier_start
+            fresh = count > max(self.n_domains, 2)
+            if fresh and not untrained:
+                raise ValueError(
+                    f"the envs give {count} domain labels, but this SGFD_SAC's domain classifier was trained on "
+                    f"n_domains={self.n_domains}: load it onto envs with at most {max(self.n_domains, 2)}, or "
+                    "train a new model"
+                )
+            self.n_domains, self.single_domain, self._domains_checked = count, False, False
+            if fresh and hasattr(self, "weighting"):
+                self.weighting = self._new_weighting()
+            elif fresh:
+                self._saved_weighting_replaced = True  # load: set_parameters skips the saved one
+        super()._adopt_env_domains()
+
     def _checked_domains(self, domains: th.Tensor | None) -> th.Tensor:
         # Their values were checked where they entered (DomainReplayBuffer.add refuses a label >= n_domains).
         if domains is None:
@@ -301,7 +344,7 @@ class SGFD_SAC(EncoderSAC):
         return domains
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "weighting"]
+        return [*super()._excluded_save_params(), "weighting", "_saved_weighting_replaced"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, saved_pytorch_variables = super()._get_torch_save_params()

@@ -17,10 +17,15 @@ beyond the one a classifier round needs to decide whether to train.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import torch
 from torch import Tensor, nn
+
+from sb3_sgfd.common.tensor_state import TensorStateModule
+
+if TYPE_CHECKING:
+    from sb3_sgfd.sgfd.settings import SGFDSettings
 
 #: (number of samples, augmented) -> (features (n, d), domain labels (n,)) of a fresh replay batch.
 FreshFeatures = Callable[[int, bool], tuple[Tensor, Tensor]]
@@ -52,7 +57,7 @@ class Weights(NamedTuple):
     figures: dict[str, Tensor]
 
 
-class SampleWeighting(nn.Module):
+class SampleWeighting(TensorStateModule):
     """The interface of SGFD's readings (see the module docstring). Subclasses take the settings
     (:class:`sb3_sgfd.sgfd.settings.SGFDSettings`), build their classifier and optimiser in ``__init__``, and
     implement ``forward`` and ``solve``.
@@ -65,6 +70,8 @@ class SampleWeighting(nn.Module):
     ready: bool = True
     classifier: nn.Module
     classifier_optimizer: torch.optim.Optimizer
+    #: Draws the random Fourier features (a checkpoint saves its state with the model's other generators).
+    rff_generator: torch.Generator
 
     def __init__(self, n_features: int, n_domains: int) -> None:
         super().__init__()
@@ -74,7 +81,17 @@ class SampleWeighting(nn.Module):
         """Whether the weighting does anything yet (before that, SGFD_SAC is SAC)."""
         return True
 
-    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:  # type: ignore[override]
+    def state_tensors(self) -> dict[str, Tensor]:
+        """The reading's own state beyond its classifier and memory (none unless a reading keeps one)."""
+        return {}
+
+    def load_state_tensors(self, tensors: dict[str, Tensor]) -> None:
+        """Take back :meth:`state_tensors`."""
+
+    def load_legacy_state(self, state: dict[str, Any]) -> None:
+        """Take back a version 0.1.0 reading's extra state (none unless a reading kept one)."""
+
+    def forward(self, z: Tensor, domains: Tensor, step: Step) -> Weights:
         """The weights of one batch, and the classifier's work of this step.
 
         :param z: the critic's (detached) encoder features of the batch, (n, d)
@@ -92,6 +109,14 @@ class SampleWeighting(nn.Module):
         :return: weights (n,) with mean 1, and the decorrelation loss at uniform weights and at the weights
         """
         raise NotImplementedError
+
+
+class WeightingFactory(Protocol):
+    """How ``SGFD_SAC`` builds a reading's weighting: the constructor every reading's class has."""
+
+    def __call__(
+        self, n_features: int, n_domains: int, settings: SGFDSettings, seed: int, device: torch.device | str = ...
+    ) -> SampleWeighting: ...
 
 
 def weight_figures(weights: Tensor, loss_before: Tensor, loss_after: Tensor, probs: Tensor | None) -> dict[str, Tensor]:

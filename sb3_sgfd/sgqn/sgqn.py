@@ -8,6 +8,7 @@ from typing import Any, ClassVar
 import cv2
 import numpy as np
 import torch as th
+from stable_baselines3.common.preprocessing import get_action_dim
 
 from sb3_sgfd.common.encoder_sac import EncoderSAC
 from sb3_sgfd.common.representation import Agent, Batch, Representation, register, step
@@ -50,6 +51,9 @@ class SGQNRepresentation(Representation):
     :param overlay_dir: A folder of images, used when ``overlay_images`` is None
     """
 
+    #: The overlay images, (N, 3, H, W) uint8 on the model's device (a buffer, not saved)
+    bank: th.Tensor
+
     def __init__(
         self,
         quantile: float = 0.9,
@@ -81,10 +85,14 @@ class SGQNRepresentation(Representation):
         if channels % 3 != 0:
             raise ValueError(f"SGQN expects stacked RGB frames (channels a multiple of 3), got {channels} channels")
         encoder = model.critic.features_extractor
-        action_dim = model.action_space.shape[0]
+        action_dim = get_action_dim(model.action_space)
         self.decoder = AttributionDecoder(encoder.features_dim, action_dim, (channels, height, width))
         self.optimizer = th.optim.Adam([*self.decoder.parameters(), *encoder.parameters()], lr=self.aux_lr)
-        images = self.overlay_images if self.overlay_images is not None else read_images(Path(self.overlay_dir))
+        if self.overlay_images is not None:
+            images = self.overlay_images
+        else:
+            assert self.overlay_dir is not None  # __init__ requires one of the two
+            images = read_images(Path(self.overlay_dir))
         self.register_buffer("bank", image_bank(images, height, width), persistent=False)
 
     def attribution_mask(self, model: Agent, observations: th.Tensor, actions: th.Tensor) -> th.Tensor:
@@ -124,7 +132,7 @@ def read_images(folder: Path) -> np.ndarray:
     files = sorted(path for path in folder.iterdir() if path.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
         raise ValueError(f"overlay_dir {str(folder)!r} holds no image ({', '.join(IMAGE_SUFFIXES)})")
-    images = []
+    images: list[np.ndarray] = []
     for path in files:
         bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if bgr is None:

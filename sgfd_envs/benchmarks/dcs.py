@@ -18,8 +18,13 @@ Facts taken from its code (``suite_utils.py``, ``background.py``, ``camera.py``,
   dynamic adds Gaussian steps of std 0.03 s per simulator step, clipped to that range.
 
 The distractions draw from generators seeded with the env's seed (DCS leaves them unseeded). The video goes into
-a sky texture of side ``min(800, 2 * image_size)`` (DCS: 800), sent to the GPU once per rendered frame that
-changed (DCS: every simulator step); frames are taken in file-name order.
+DCS's 800 x 800 sky texture, each DAVIS frame resized whole (bilinear, as DCS's ``tf.image.resize``), sent to the
+GPU once per rendered frame that changed (DCS: every simulator step); frames are taken in file-name order. With
+``render="fast"`` the texture's side is ``min(800, 2 * image_size)`` and the resize averages (area).
+
+DMC-GB's ``distracting_cs`` mode (and DMC-GB2's DCS test) is this suite at another scale with other video counts,
+always dynamic, its walks moved every second simulator step (:data:`sgfd_envs.benchmarks.dmcgb.DISTRACTING_CS_VIDEOS`);
+:class:`DCSDistraction` takes those as arguments.
 """
 
 from __future__ import annotations
@@ -29,13 +34,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import cv2
 import mujoco
 import numpy as np
 from dm_control.mujoco import Physics
 
 from sgfd_envs.benchmarks.media import ClipBank, davis_clips
 from sgfd_envs.benchmarks.scene import TextureSlot, object_id, rotation_x, rotation_z
-from sgfd_envs.dmc import CameraRenderer
+from sgfd_envs.rendering import CameraRenderer
 
 NAME = "DCS"
 SPLITS = ("train", "easy", "medium", "hard")
@@ -73,6 +79,10 @@ TASKS: dict[tuple[str, str], int] = {
     ("reacher", "easy"): 4,
     ("walker", "walk"): 2,
 }
+# DCS's difficulty -> (scale, videos of the list); None: all of them.
+DIFFICULTIES: dict[str, tuple[float, int | None]] = {
+    name: (DIFFICULTY_SCALE[name], DIFFICULTY_VIDEOS[name]) for name in DIFFICULTY_SCALE
+}
 GROUND_ALPHA = {"reacher": 0.0, "walker": 1.0, "cheetah": 1.0}
 DEFAULT_GROUND_ALPHA = 0.3
 SKY_TEXTURE_SIDE = 800
@@ -80,9 +90,10 @@ SKY_TEXTURE_SIDE = 800
 _REFERENCE_RADIUS = 4.0
 
 
-def sky_texture_side(image_size: int) -> int:
-    """Side of the sky texture the video is written to, for an observation size."""
-    return min(SKY_TEXTURE_SIDE, 2 * image_size)
+def sky_texture_side(image_size: int, render: str = "benchmark") -> int:
+    """Side of the sky texture the video is written to: DCS's 800, or with ``render="fast"`` twice the
+    observation's side (at most 800)."""
+    return SKY_TEXTURE_SIDE if render == "benchmark" else min(SKY_TEXTURE_SIDE, 2 * image_size)
 
 
 def check_distractions(distractions: Sequence[str]) -> tuple[str, ...]:
@@ -356,17 +367,23 @@ class SkyVideo:
 
 
 class DCSDistraction:
-    """The Distracting Control Suite at one difficulty on one env's physics (see the module docstring).
+    """The Distracting Control Suite at one scale on one env's physics (see the module docstring).
 
     :param physics: the env's physics
     :param domain: the dm_control domain
-    :param difficulty: ``"easy"``, ``"medium"`` or ``"hard"``
+    :param scale: the difficulty scale s (DCS: easy 0.1, medium 0.2, hard 0.3; DMC-GB: its intensity)
+    :param n_videos: how many videos of the list the background draws from (None: all)
     :param dynamic: whether the distractions move during an episode
     :param distractions: which of :data:`DISTRACTIONS` apply
     :param background_videos: ``"train"`` or ``"validation"``: DCS's DAVIS list
     :param image_size: observation height and width
     :param background_dir: DAVIS's ``JPEGImages/480p`` folder, or None for the procedural stand-ins
     :param camera_id: the rendered camera
+    :param update_every: the walks move at every ``update_every``-th simulator step of an episode (DCS: 1,
+        DMC-GB's ``distracting_cs``: 2)
+    :param render: ``"benchmark"`` (DCS's 800 x 800 sky texture, frames resized with ``interpolation``) or
+        ``"fast"`` (:func:`sky_texture_side`, area resize)
+    :param interpolation: OpenCV interpolation closest to the benchmark's resize of a DAVIS frame
     """
 
     hide = "nothing"
@@ -375,30 +392,34 @@ class DCSDistraction:
         self,
         physics: Physics,
         domain: str,
-        difficulty: str,
+        scale: float,
+        n_videos: int | None,
         dynamic: bool,
         distractions: Sequence[str],
         background_videos: str,
         image_size: int,
         background_dir: str | Path | None,
+        *,
         camera_id: int = 0,
+        update_every: int = 1,
+        render: str = "benchmark",
+        interpolation: int = cv2.INTER_LINEAR,
     ) -> None:
-        if difficulty not in DIFFICULTY_SCALE:
-            raise ValueError(f"difficulty must be one of {tuple(DIFFICULTY_SCALE)}, got {difficulty!r}")
         if background_videos not in VIDEO_SPLITS:
             raise ValueError(f"background_videos must be one of {VIDEO_SPLITS}, got {background_videos!r}")
         if not isinstance(dynamic, bool):
             raise ValueError(f"dynamic must be True or False, got {dynamic!r}")
         distractions = check_distractions(distractions)
-        scale = DIFFICULTY_SCALE[difficulty]
-        self.difficulty = difficulty
+        self.scale = scale
+        self.update_every = update_every
         self.background: SkyVideo | None = None
         self.camera: CameraWalk | None = None
         self.colour: ColourWalk | None = None
         if "background" in distractions:
-            videos = DAVIS_VIDEOS[background_videos][: DIFFICULTY_VIDEOS[difficulty]]
-            side = sky_texture_side(image_size)
-            clips = davis_clips(videos, background_videos, side, background_dir)
+            videos = DAVIS_VIDEOS[background_videos][:n_videos]
+            side = sky_texture_side(image_size, render)
+            resize = interpolation if render == "benchmark" else cv2.INTER_AREA
+            clips = davis_clips(videos, background_videos, side, background_dir, resize)
             alpha = GROUND_ALPHA.get(domain, DEFAULT_GROUND_ALPHA)
             self.background = SkyVideo(physics, clips, dynamic, alpha, side)
         if "camera" in distractions:
@@ -406,12 +427,14 @@ class DCSDistraction:
         if "colour" in distractions:
             self.colour = ColourWalk(physics, scale, dynamic)
         self._rngs: list[np.random.Generator] = []
+        self._steps = 0
 
     def start_episode(self, rng: np.random.Generator, reseeded: bool) -> None:
         if reseeded or not self._rngs:
             # One stream per distraction, as DCS's wrappers each hold their own.
             self._rngs = rng.spawn(3)
         background_rng, camera_rng, colour_rng = self._rngs
+        self._steps = 0
         if self.background is not None:
             self.background.start(background_rng)
         if self.camera is not None:
@@ -420,6 +443,9 @@ class DCSDistraction:
             self.colour.start(colour_rng)
 
     def control_step(self) -> None:
+        self._steps += 1
+        if self._steps % self.update_every:
+            return
         _, camera_rng, colour_rng = self._rngs
         if self.background is not None:
             self.background.advance()
@@ -431,13 +457,14 @@ class DCSDistraction:
     def get_state(self) -> dict[str, Any]:
         """Each distraction's generator and state."""
         parts = {name: part.get_state() for name, part in self._parts().items() if part is not None}
-        return {"random": [rng.bit_generator.state for rng in self._rngs], **parts}
+        return {"random": [rng.bit_generator.state for rng in self._rngs], "steps": self._steps, **parts}
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Continue from ``get_state``'s state, on a distraction made with the same arguments."""
         self._rngs = [np.random.default_rng() for _ in state["random"]]
         for rng, rng_state in zip(self._rngs, state["random"], strict=True):
             rng.bit_generator.state = rng_state
+        self._steps = state.get("steps", 0)
         for name, part in self._parts().items():
             if part is not None:
                 part.set_state(state[name])

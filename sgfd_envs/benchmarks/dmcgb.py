@@ -8,27 +8,46 @@ Facts taken from its code:
   seeded once with the env's seed) and gives the robot's ``self`` material, the floor's checker colours
   (``grid`` rgb1 and rgb2; its edge marks keep their colour) and the sky's upper colour (``skybox`` rgb1).
 - ``video_easy`` (10 clips) replaces the sky's pixels with a video frame, ``video_hard`` (100 clips) the sky's
-  and the floor's: DMC-GB paints them green and chroma-keys them in HSV, here the render pass's depth says
-  exactly which pixels they are. Each frame is the whole clip frame resized (bilinear) to the observation;
-  the clip advances one frame per agent step from frame 0, and episode k after seeding shows clip (k + 1) mod n.
-- Action repeat 4, 2 for finger; 1000 simulator steps per episode; 84x84 frames (the paper's agents stack 3).
+  and the floor's, as DMC-GB does: the sky's texture (and the floor's) painted green ([.2, .8, .2], its marks
+  too), the frame rendered as usual, and every pixel whose HSV colour lies in hue 100-185 degrees, saturation
+  80-255 and value 70-255 (of 255) replaced by the video frame's pixel (:func:`green_screen_mask`). Each frame is
+  the whole clip frame resized (bilinear) to the observation; the clip advances one frame per agent step from
+  frame 0, and episode k after seeding shows clip (k + 1) mod n.
+- ``distracting_cs`` (its code's reformatting of the Distracting Control Suite, :mod:`sgfd_envs.benchmarks.dcs`):
+  background, camera and colour at one ``intensity`` s of :data:`DISTRACTING_CS_VIDEOS`, the background drawing
+  from the first 2, 2, 4, 6, 8 of DAVIS's 60 training videos (all 60 from 0.3 on), always dynamic, every walk
+  (camera, colours, video frame) moved at every second simulator step of the episode; DAVIS frames resized to the
+  800 x 800 sky with Pillow's default filter of its pinned Pillow 6.2 (nearest). SVEA, SGQN and DMC-GB2 report
+  this mode; DMC-GB2 tests on the same eight intensities (:mod:`sgfd_envs.benchmarks.dmcgb2`).
+- Action repeat 4, 2 for finger (the code's default is 4 for every task; its maintainer states that finger-spin
+  ran at 2, in the repository's issue 13); 1000 simulator steps per episode; 84x84 frames (agents stack 3).
+- Its ``train.py`` counts ``env.step`` calls: ``train_steps=500k`` is 500k agent steps (2M simulator steps at
+  repeat 4), and ``eval.py`` tests that checkpoint.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import mujoco
 import numpy as np
 from dm_control.mujoco import Physics
 
-from sgfd_envs.backgrounds import composite
+from sgfd_envs.benchmarks.dcs import DISTRACTIONS, DCSDistraction
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
 from sgfd_envs.benchmarks.scene import TextureSlot, object_id, rgb_attribute, suite_texture_data
-from sgfd_envs.dmc import CameraRenderer
+from sgfd_envs.rendering import CameraRenderer
 
 NAME = "DMCGB"
+DISTRACTING_CS = "distracting_cs"
 MODES = ("train", "color_easy", "color_hard", "video_easy", "video_hard")
+# distracting_cs: intensity -> how many of DAVIS's training videos the background draws from (None: all 60).
+DISTRACTING_CS_VIDEOS: dict[float, int | None] = {
+    0.025: 2, 0.05: 2, 0.1: 4, 0.15: 6, 0.2: 8, 0.3: None, 0.4: None, 0.5: None
+}  # fmt: skip
+INTENSITIES = tuple(DISTRACTING_CS_VIDEOS)
+DISTRACTING_CS_UPDATE_EVERY = 2
 # (domain, task) -> action repeat, DMC-GB's defaults.
 TASKS: dict[tuple[str, str], int] = {
     ("walker", "walk"): 4,
@@ -37,6 +56,96 @@ TASKS: dict[tuple[str, str], int] = {
     ("ball_in_cup", "catch"): 4,
     ("finger", "spin"): 2,
 }
+# DMC-GB's green screen: the colour of the sky (and floor) in its video modes, and the HSV box it keys out (hue in
+# degrees, saturation and value out of 255).
+GREEN_SCREEN_RGB = (0.2, 0.8, 0.2)
+GREEN_SCREEN_HSV_LOW = (100.0, 80.0, 70.0)
+GREEN_SCREEN_HSV_HIGH = (185.0, 255.0, 255.0)
+
+
+def green_screen_mask(rgb: np.ndarray) -> np.ndarray:
+    """Where DMC-GB's green screen keys a frame out: the pixels whose HSV colour (Python's ``colorsys``
+    convention) lies in :data:`GREEN_SCREEN_HSV_LOW` .. :data:`GREEN_SCREEN_HSV_HIGH`.
+
+    :param rgb: uint8 (H, W, 3) frame
+    :return: bool (H, W)
+    """
+    channels = rgb.astype(np.float64) / 255.0
+    red, green, blue = channels[..., 0], channels[..., 1], channels[..., 2]
+    high, low = channels.max(axis=-1), channels.min(axis=-1)
+    spread = high - low
+    grey = spread == 0
+    safe_spread = np.where(grey, 1.0, spread)
+    red_c, green_c, blue_c = ((high - c) / safe_spread for c in (red, green, blue))
+    hue = np.where(red == high, blue_c - green_c, np.where(green == high, 2.0 + red_c - blue_c, 4.0 + green_c - red_c))
+    hue = np.where(grey, 0.0, (hue / 6.0) % 1.0) * 360.0
+    saturation = np.where(grey, 0.0, spread / np.where(high == 0, 1.0, high)) * 255.0
+    value = high * 255.0
+    (hue_low, sat_low, value_low), (hue_high, sat_high, value_high) = GREEN_SCREEN_HSV_LOW, GREEN_SCREEN_HSV_HIGH
+    return (
+        (hue >= hue_low) & (hue <= hue_high)
+        & (saturation >= sat_low) & (saturation <= sat_high)
+        & (value >= value_low) & (value <= value_high)
+    )  # fmt: skip
+
+
+class GreenScreen:
+    """DMC-GB's green screen on a dm_control scene: the skybox (and with ``floor`` the grid) painted
+    :data:`GREEN_SCREEN_RGB`, marks included, as its XML edit paints them.
+
+    :param physics: the env's physics
+    :param floor: paint the floor too (``video_hard``)
+    """
+
+    def __init__(self, physics: Physics, floor: bool) -> None:
+        green = rgb_attribute(GREEN_SCREEN_RGB)
+        self._slots = [TextureSlot(physics, "skybox")]
+        self._slots[0].write(suite_texture_data("skybox", rgb1=green, rgb2=green, markrgb=green))
+        if floor:
+            self._slots.append(TextureSlot(physics, "grid"))
+            self._slots[1].write(suite_texture_data("grid", rgb1=green, rgb2=green, markrgb=green))
+
+    def upload(self, renderer: CameraRenderer) -> None:
+        """Send the painted textures to the GPU (once)."""
+        for slot in self._slots:
+            slot.upload_if_changed(renderer)
+
+
+def check_intensity(split: str, intensity: float | None) -> float | None:
+    """``intensity`` if it fits ``split``: one of :data:`INTENSITIES` for ``distracting_cs``, None otherwise."""
+    if split == DISTRACTING_CS:
+        if isinstance(intensity, bool) or intensity not in DISTRACTING_CS_VIDEOS:
+            raise ValueError(f"intensity must be one of {INTENSITIES} with split='distracting_cs', got {intensity!r}")
+        return float(intensity)
+    if intensity is not None:
+        raise ValueError(f"intensity is for split='distracting_cs' only, got intensity={intensity!r} with {split=}")
+    return None
+
+
+def distracting_cs(
+    physics: Physics,
+    domain: str,
+    intensity: float,
+    image_size: int,
+    background_dir: str | Path | None,
+    render: str = "benchmark",
+    interpolation: int = cv2.INTER_NEAREST_EXACT,
+) -> DCSDistraction:
+    """DMC-GB's ``distracting_cs`` at one intensity (see the module docstring).
+
+    :param physics: the env's physics
+    :param domain: the dm_control domain
+    :param intensity: one of :data:`INTENSITIES`
+    :param image_size: observation height and width
+    :param background_dir: DAVIS's ``JPEGImages/480p`` folder, or None for the procedural stand-ins
+    :param render: ``"benchmark"`` or ``"fast"`` (see :class:`~sgfd_envs.benchmarks.dcs.DCSDistraction`)
+    :param interpolation: OpenCV's closest to the benchmark's resize of a DAVIS frame (DMC-GB's Pillow 6.2:
+        nearest, as ``INTER_NEAREST_EXACT``)
+    """
+    return DCSDistraction(
+        physics, domain, intensity, DISTRACTING_CS_VIDEOS[intensity], True, DISTRACTIONS, "train", image_size,
+        background_dir, update_every=DISTRACTING_CS_UPDATE_EVERY, render=render, interpolation=interpolation,
+    )  # fmt: skip
 
 
 class SceneColours:
@@ -81,15 +190,17 @@ class DMCGBDistraction:
         if mode not in MODES[1:]:
             raise ValueError(f"mode must be one of {MODES[1:]}, got {mode!r}")
         self.mode = mode
-        self.hide = {"video_easy": "sky", "video_hard": "backdrop"}.get(mode, "nothing")
+        self.hide = "nothing"
         self._colours: list[dict[str, np.ndarray]] | None = None
         self._scene_colours: SceneColours | None = None
         self._clips: ClipBank | None = None
+        self._green_screen: GreenScreen | None = None
         if mode.startswith("color"):
             self._colours = colour_set(mode.removeprefix("color_"), data_dir)
             self._scene_colours = SceneColours(physics)
         else:
             self._clips = dmcgb_clips(mode, image_size, data_dir)
+            self._green_screen = GreenScreen(physics, floor=mode == "video_hard")
         self._episodes_since_seed = 0
         self.colour_index: int | None = None
         self.clip_index: int | None = None
@@ -126,5 +237,7 @@ class DMCGBDistraction:
         if self._scene_colours is not None:
             self._scene_colours.upload(renderer)
             return renderer.render()[0]
-        rgb, background = renderer.render()
-        return composite(rgb, background, self._clips.clip(self.clip_index).frame(agent_step))
+        self._green_screen.upload(renderer)
+        rgb = renderer.render()[0]
+        keyed = green_screen_mask(rgb)[..., np.newaxis]
+        return np.where(keyed, self._clips.clip(self.clip_index).frame(agent_step), rgb)

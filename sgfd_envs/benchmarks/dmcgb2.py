@@ -14,11 +14,14 @@ Facts taken from its code:
   its 100) on a box screen behind the robot (:data:`PROJECTORS`; it follows the torso of walker and cheetah),
   the next clip each episode from the same drawn index, one frame per agent step; ``video_hard`` also makes
   the floor invisible (grid alpha 0); ``color_video`` does both (the floor stays).
+- ``distracting_cs``: its DCS test, DMC-GB's ``distracting_cs`` code at the same eight intensities
+  (:func:`sgfd_envs.benchmarks.dmcgb.distracting_cs`), on these tasks at action repeat 2; its Pillow (10.2) resizes
+  DAVIS's frames to the sky bicubically.
 - Action repeat 2 for every task, 84x84 frames, 100 test episodes at the end of training.
 
 The screen is a site with a cube texture whose faces all show the frame, as in DMC-GB2; MuJoCo draws it.
-The frame is resized to a texture of side ``min(256, 2 * image_size)`` (DMC-GB2: 256 at 84x84; MuJoCo's
-mipmaps filter both to about the same picture, and the smaller one is faster to send to the GPU).
+The frame is resized (bicubic, as DMC-GB2's Pillow) to DMC-GB2's 256 x 256 texture; with ``render="fast"`` to
+a texture of side ``min(256, 2 * image_size)`` (area resize), faster to send to the GPU.
 """
 
 from __future__ import annotations
@@ -38,12 +41,14 @@ from sgfd_envs import domains
 from sgfd_envs.benchmarks.dmcgb import SceneColours
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
 from sgfd_envs.benchmarks.scene import TextureSlot, camera_frame_override, object_id, rotation_x, rotation_y, rotation_z
-from sgfd_envs.dmc import CameraRenderer
+from sgfd_envs.rendering import CameraRenderer
 
 NAME = "DMCGB2"
 GEOMETRIC_MODES = ("rotate_easy", "rotate_hard", "shift_easy", "shift_hard", "rotate_shift_easy", "rotate_shift_hard")
 PHOTOMETRIC_MODES = ("color_easy", "color_hard", "video_easy", "video_hard", "color_video_easy", "color_video_hard")
 MODES = ("train", *GEOMETRIC_MODES, *PHOTOMETRIC_MODES)
+# How DMC-GB2's Pillow resizes a DAVIS frame or a clip frame (its default filter, bicubic), in OpenCV.
+RESIZE = cv2.INTER_CUBIC
 TASKS: dict[tuple[str, str], int] = {
     ("walker", "walk"): 2,
     ("walker", "stand"): 2,
@@ -103,9 +108,10 @@ def shift_angles(domain: str, difficulty: str) -> np.ndarray:
     return np.concatenate([corners[i] + steps * (corners[(i + 1) % 4] - corners[i]) for i in range(4)])
 
 
-def projector_texture_side(image_size: int) -> int:
-    """Side of the screen's texture for an observation size."""
-    return min(PROJECTOR_TEXTURE_SIDE, 2 * image_size)
+def projector_texture_side(image_size: int, render: str = "benchmark") -> int:
+    """Side of the screen's texture: DMC-GB2's 256, or with ``render="fast"`` twice the observation's side (at most
+    256)."""
+    return PROJECTOR_TEXTURE_SIDE if render == "benchmark" else min(PROJECTOR_TEXTURE_SIDE, 2 * image_size)
 
 
 def load_with_projector(domain: str, task: str, texture_side: int) -> control.Environment:
@@ -155,11 +161,20 @@ class DMCGB2Distraction:
     :param mode: one of :data:`MODES` other than ``"train"``
     :param image_size: observation height and width
     :param data_dir: DMC-GB's (or DMC-GB2's ``envs/dmcgb``) data folder, or None for the procedural stand-ins
+    :param render: ``"benchmark"`` or ``"fast"``: the screen texture's side and resize (module docstring)
     """
 
     hide = "nothing"
 
-    def __init__(self, physics: Physics, domain: str, mode: str, image_size: int, data_dir: str | Path | None) -> None:
+    def __init__(
+        self,
+        physics: Physics,
+        domain: str,
+        mode: str,
+        image_size: int,
+        data_dir: str | Path | None,
+        render: str = "benchmark",
+    ) -> None:
         parts, difficulty = split_mode(mode)
         self.mode = mode
         self._physics = physics
@@ -172,8 +187,9 @@ class DMCGB2Distraction:
         self._scene_colours = SceneColours(physics) if "color" in parts else None
         self._clips: ClipBank | None = None
         if "video" in parts:
-            side = projector_texture_side(image_size)
-            self._clips = dmcgb_clips(f"video_{difficulty}", side, data_dir, interpolation=cv2.INTER_AREA)
+            side = projector_texture_side(image_size, render)
+            resize = RESIZE if render == "benchmark" else cv2.INTER_AREA
+            self._clips = dmcgb_clips(f"video_{difficulty}", side, data_dir, interpolation=resize)
             self._screen = TextureSlot(physics, _PROJECTOR)
             self._screen_side = side
             self._screen_site = object_id(physics, mujoco.mjtObj.mjOBJ_SITE, _PROJECTOR)

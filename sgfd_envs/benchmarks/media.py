@@ -44,6 +44,9 @@ DMCGB_CLIP_SEEDS = {"video_easy": 3000, "video_hard": 3100}
 DAVIS_SEEDS = {"train": 4000, "validation": 4100}
 # DAVIS 2017's clips are 25-104 frames long; the stand-ins draw their length from about that range.
 DAVIS_FRAMES_RANGE = (50, 100)
+# The stand-ins are drawn at most this large and resized (bilinear) to a bigger texture: a procedural frame costs
+# FFTs of 4x its side, and a stand-in's detail is no benchmark's anyway.
+STAND_IN_MAX_SIDE = 256
 
 
 # --- colour sets -----------------------------------------------------------------------------------------
@@ -221,11 +224,13 @@ class ImageFolderClip:
 
     :param folder: the video's folder
     :param size: frame height and width
+    :param interpolation: OpenCV interpolation of the resize
     """
 
-    def __init__(self, folder: str | Path, size: int) -> None:
+    def __init__(self, folder: str | Path, size: int, interpolation: int = cv2.INTER_AREA) -> None:
         self.folder = Path(folder)
         self.size = size
+        self._interpolation = interpolation
         self._files = sorted(p for p in self.folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if not self._files:
             raise ValueError(f"background_dir: the video folder {str(self.folder)!r} holds no image")
@@ -241,9 +246,39 @@ class ImageFolderClip:
             image = cv2.imread(str(self._files[index]), cv2.IMREAD_COLOR)
             if image is None:
                 raise ValueError(f"background_dir: OpenCV could not read the image {str(self._files[index])!r}")
-            resized = cv2.resize(image, (self.size, self.size), interpolation=cv2.INTER_AREA)
+            resized = cv2.resize(image, (self.size, self.size), interpolation=self._interpolation)
             self._cache[index] = cv2.cvtColor(resized, cv2.COLOR_BGR2RGB)
         return self._cache[index]
+
+
+class ResizedSource:
+    """A source's frames resized (bilinear) to size x size, each once.
+
+    :param source: the frames
+    :param size: frame height and width
+    """
+
+    def __init__(self, source: BackgroundSource, size: int) -> None:
+        self._source = source
+        self.size = size
+        self._cache: dict[int, np.ndarray] = {}
+
+    @property
+    def n_frames(self) -> int:
+        return self._source.n_frames
+
+    def frame(self, index: int) -> np.ndarray:
+        index %= self.n_frames
+        if index not in self._cache:
+            frame = self._source.frame(index)
+            self._cache[index] = cv2.resize(frame, (self.size, self.size), interpolation=cv2.INTER_LINEAR)
+        return self._cache[index]
+
+
+def procedural_clip(seed: int, size: int, n_frames: int) -> BackgroundSource:
+    """A procedural stand-in clip of size x size frames (drawn at most :data:`STAND_IN_MAX_SIDE` large)."""
+    drawn = ProceduralBackground(seed, min(size, STAND_IN_MAX_SIDE), min(size, STAND_IN_MAX_SIDE), n_frames=n_frames)
+    return drawn if size <= STAND_IN_MAX_SIDE else ResizedSource(drawn, size)
 
 
 class ClipBank:
@@ -283,7 +318,7 @@ def dmcgb_clips(mode: str, size: int, data_dir: str | Path | None, interpolation
         seeds = [DMCGB_CLIP_SEEDS[mode] + i for i in range(count)]
         return ClipBank(
             [f"procedural {seed}" for seed in seeds],
-            lambda i: ProceduralBackground(seeds[i], size, size, n_frames=DMCGB_CLIP_FRAMES[mode]),
+            lambda i: procedural_clip(seeds[i], size, DMCGB_CLIP_FRAMES[mode]),
         )
     folder = check_data_dir(data_dir) / mode
     paths = [folder / f"video{i}.mp4" for i in range(count)]
@@ -296,20 +331,27 @@ def dmcgb_clips(mode: str, size: int, data_dir: str | Path | None, interpolation
     return ClipBank([str(p) for p in paths], lambda i: VideoClip(paths[i], size, interpolation))
 
 
-def davis_clips(videos: Sequence[str], split: str, size: int, background_dir: str | Path | None) -> ClipBank:
+def davis_clips(
+    videos: Sequence[str],
+    split: str,
+    size: int,
+    background_dir: str | Path | None,
+    interpolation: int = cv2.INTER_AREA,
+) -> ClipBank:
     """DAVIS videos by name (the Distracting Control Suite's lists), from ``background_dir`` or procedural.
 
     :param videos: the video names, in order
     :param split: ``"train"`` or ``"validation"`` (picks the stand-ins' seed bank)
     :param size: frame height and width
     :param background_dir: DAVIS's ``JPEGImages/480p`` folder (or the DAVIS folder above it), or None
+    :param interpolation: OpenCV interpolation of the resize of DAVIS's frames
     """
     if background_dir is None:
         seeds = [DAVIS_SEEDS[split] + i for i in range(len(videos))]
 
-        def procedural(i: int) -> ProceduralBackground:
+        def procedural(i: int) -> BackgroundSource:
             length = int(np.random.default_rng(seeds[i]).integers(DAVIS_FRAMES_RANGE[0], DAVIS_FRAMES_RANGE[1] + 1))
-            return ProceduralBackground(seeds[i], size, size, n_frames=length)
+            return procedural_clip(seeds[i], size, length)
 
         return ClipBank([f"procedural {seed}" for seed in seeds], procedural)
     folder = davis_folder(background_dir)
@@ -319,7 +361,7 @@ def davis_clips(videos: Sequence[str], split: str, size: int, background_dir: st
             f"background_dir: {str(folder)!r} lacks {len(missing)} of the {len(videos)} DAVIS {split} videos this "
             f"split uses ({', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''})"
         )
-    return ClipBank(list(videos), lambda i: ImageFolderClip(folder / videos[i], size))
+    return ClipBank(list(videos), lambda i: ImageFolderClip(folder / videos[i], size, interpolation))
 
 
 def davis_folder(background_dir: str | Path) -> Path:

@@ -16,7 +16,7 @@ import numpy as np
 from dm_control.mujoco import Physics
 from dm_control.suite import common
 
-from sgfd_envs.dmc import CameraRenderer
+from sgfd_envs.rendering import CameraRenderer
 
 # dm_control's shared assets: the skybox texture is in skybox.xml, the floor's grid texture in materials.xml.
 _ASSET_OF_TEXTURE = {"skybox": "./common/skybox.xml", "grid": "./common/materials.xml"}

@@ -14,6 +14,10 @@ class DomainLabelsMixin:
     """
 
     domains: np.ndarray
+    # From the host (SB3's BaseBuffer)
+    buffer_size: int
+    pos: int
+    full: bool
 
     def stored_domains(self) -> np.ndarray:
         """The distinct domain labels among the transitions stored so far."""

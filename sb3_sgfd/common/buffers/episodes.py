@@ -3,6 +3,8 @@ from it."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from sb3_sgfd.common.buffers.slots import stored_pairs
@@ -20,7 +22,17 @@ class EpisodeIndexMixin:
     """
 
     episodes: np.ndarray
+    # From the host: SB3's ReplayBuffer ...
+    buffer_size: int
+    n_envs: int
+    pos: int
+    full: bool
+    dones: np.ndarray
+    # ... and DomainReplayBuffer
+    frame_stack: int | None
     same_episode_negatives: bool
+    _negatives_rng: np.random.Generator | None
+    is_sampleable: Callable[[np.ndarray, np.ndarray], np.ndarray]
 
     def _init_episode_tracking(self) -> None:
         """Allocate the episode bookkeeping, for an empty buffer."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 
 import numpy as np
 from gymnasium import spaces
@@ -25,11 +26,22 @@ class FrameStorageMixin:
     ``is_sampleable`` and ``storage_nbytes``.
     """
 
-    frame_stack: int | None
     frames: np.ndarray
     history: np.ndarray
     has_side_frame: np.ndarray
     side_frames: dict[tuple[int, int], np.ndarray]
+    # From the host: SB3's ReplayBuffer ...
+    buffer_size: int
+    n_envs: int
+    pos: int
+    full: bool
+    obs_shape: tuple[int, ...]
+    observation_space: spaces.Space
+    observations: np.ndarray
+    # ... and DomainReplayBuffer
+    frame_stack: int | None
+    is_sampleable: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    storage_nbytes: Callable[[], int]
 
     def _init_frame_storage(self, observation_space: spaces.Box) -> None:
         """

@@ -14,9 +14,10 @@ from stable_baselines3.common.vec_env import VecNormalize
 from sb3_sgfd.common.buffers.domains import DomainLabelsMixin, domain_labels
 from sb3_sgfd.common.buffers.episodes import EpisodeIndexMixin
 from sb3_sgfd.common.buffers.frames import _EMPTY_SPACE, FrameStorageMixin, _check_frame_stack
+from sb3_sgfd.common.buffers.nstep import n_step_targets
 from sb3_sgfd.common.buffers.slots import stored_pairs
 from sb3_sgfd.common.transfer import BatchTransfer
-from sb3_sgfd.common.validation import check_positive_int, check_transitions
+from sb3_sgfd.common.validation import check_interval, check_positive_int, check_transitions
 
 
 class DomainReplayBufferSamples(NamedTuple):
@@ -81,6 +82,10 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
         ``np.random`` at construction)
     :param n_domains: Number of domain labels, so that a label outside [0, n_domains) is refused at ``add``
         (EncoderSAC's agents pass their envs' count); None: any non-negative label
+    :param n_steps: Rewards in each sample's return, as SB3's ``NStepReplayBuffer`` (SAC's ``n_steps``): up to
+        ``n_steps`` discounted rewards of the episode, the next observation and done flag of the last, and
+        ``discounts`` = gamma^(steps taken); 1: one-step transitions
+    :param gamma: The discount of the n-step returns
 
     Every ``add`` refuses a non-finite observation, action or reward and a label out of range, naming the
     sub-env, its domain and the add (:func:`sb3_sgfd.common.validation.check_transitions`): nothing bad is stored, so
@@ -99,10 +104,17 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
         frame_stack: int | None = None,
         same_episode_negatives: bool = False,
         n_domains: int | None = None,
+        n_steps: int = 1,
+        gamma: float = 0.99,
     ):
         if n_domains is not None:
             check_positive_int(n_domains=n_domains)
+        check_positive_int(n_steps=n_steps)
+        check_interval("gamma", gamma, 0.0, 1.0)
+        if n_steps > 1 and optimize_memory_usage:
+            raise ValueError("n_steps > 1 needs optimize_memory_usage=False (as SB3's NStepReplayBuffer)")
         self.n_domains = n_domains
+        self.n_steps, self.gamma = int(n_steps), float(gamma)
         if not isinstance(same_episode_negatives, (bool, np.bool_)):
             raise ValueError(f"same_episode_negatives must be a bool, got {same_episode_negatives!r}")
         self.frame_stack = _check_frame_stack(frame_stack, observation_space, optimize_memory_usage)
@@ -139,6 +151,8 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
         state.setdefault("same_episode_negatives", False)
         state.setdefault("_negatives_rng", None)
         state.setdefault("n_domains", None)
+        state.setdefault("n_steps", 1)
+        state.setdefault("gamma", 0.99)
         self.__dict__.update(state)
         if "episodes" not in state:
             self._rebuild_episodes()
@@ -234,7 +248,7 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
         older = (slots - self.pos) % self.buffer_size if self.full else slots
         return in_range & (older >= self.history[slots, envs])
 
-    def _get_samples(
+    def _get_samples(  # type: ignore[override]  # a superset of ReplayBufferSamples (SB3: DictReplayBuffer)
         self,
         batch_inds: np.ndarray,
         env: VecNormalize | None = None,
@@ -272,23 +286,47 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
                 next_obs = self.observations[(batch_inds + 1) % self.buffer_size, env_indices, :]
             else:
                 next_obs = self.next_observations[batch_inds, env_indices, :]
+        dones = (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1)
+        rewards = self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env)
+        discounts = None
+        if self.n_steps > 1:
+            targets = n_step_targets(
+                batch_inds,
+                env_indices,
+                dones=self.dones,
+                timeouts=self.timeouts,
+                newest_slot=(self.pos - 1) % self.buffer_size,
+                buffer_size=self.buffer_size,
+                n_steps=self.n_steps,
+                gamma=self.gamma,
+            )
+            steps = self._normalize_reward(self.rewards[targets.slots, env_indices[:, None]], env)
+            rewards = (steps * targets.reward_weights).sum(axis=1, keepdims=True).astype(np.float32)
+            dones, discounts = targets.dones, targets.discounts
+            if self.frame_stack is not None:
+                next_obs = self._rebuild_stacks(targets.last_slots, env_indices)[1]
+            else:
+                next_obs = self.next_observations[targets.last_slots, env_indices, :]
         data = (
             self._normalize_obs(obs, env),
             self.actions[batch_inds, env_indices, :],
             self._normalize_obs(next_obs, env),
-            (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1),
-            self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env),
+            dones,
+            rewards,
         )
         arrays = [*data, self.domains[batch_inds, env_indices]]
         if self.same_episode_negatives:
             other_slots, other_envs = self._same_episode_indices(batch_inds, env_indices)
             arrays.append(self._normalize_obs(self._observations_at(other_slots, other_envs), env))
+        if discounts is not None:
+            arrays.append(discounts)
         # Every array here is the batch's own gather (or rebuilt stack): one transfer, no defensive copies.
         tensors = self._batch_transfer(arrays)
-        return DomainReplayBufferSamples(
+        return DomainReplayBufferSamples(  # type: ignore[misc]  # mypy cannot tell *tensors[:5] fills five fields
             *tensors[:5],
             domains=tensors[5],
             same_episode_observations=tensors[6] if self.same_episode_negatives else None,
+            discounts=tensors[-1] if discounts is not None else None,
         )
 
     @property
