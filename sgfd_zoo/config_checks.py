@@ -79,7 +79,7 @@ def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any], where: str = "env_
     :param where: how the message names them, e.g. ``--eval-env-kwargs``
     """
     import sgfd_envs
-    from sgfd_envs.registry import env_kwargs_of
+    from sgfd_envs.builders import env_kwargs_of
 
     for key, why in ZOO_ENV_KWARGS.items():
         if key in env_kwargs:
