@@ -1,6 +1,7 @@
 """The device check: what a GPU machine's minutes are for, in one script and one markdown table.
 
-Runs, each within its own time budget (the whole in about 8 minutes on one GPU with 16 CPU cores):
+Runs, each in a subprocess stopped at its own time limit (:data:`BUDGETS`; they add up to less than
+:data:`TOTAL_SECONDS`, 8 minutes, the whole check's worst case on a GPU host with 16 CPU cores):
 
 1. the tests marked ``cuda`` (pinned replay transfers, GPU-saved models loading on the CPU and back, the paper's
    agent with every tensor on the GPU);
@@ -9,6 +10,9 @@ Runs, each within its own time budget (the whole in about 8 minutes on one GPU w
 4. a learning run of the paper's agent (``sgfd_sac``: SGFD on AMBS) and of AMBS on SGFD/walker-walk-v0 with the
    zoo's paper-scale settings, the 4 training domains rendered in parallel processes: updates per second once
    learning has started, and the hours a paper-scale run (500k updates) would take at that rate.
+
+Each row is written to the table (``--out``) and printed the moment its part ends, so a check stopped from
+outside keeps every row it measured; a part that runs past its limit gets a row saying so, and the others run.
 
 ``--smoke`` runs the same on the CPU at toy sizes (the agents' overhead rows left out) in under 2 minutes on an
 idle 2-core machine (CI runs it, so the script cannot rot between GPU sessions); its figures say nothing about
@@ -27,10 +31,37 @@ import subprocess
 import sys
 import time
 from argparse import Namespace
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER_UPDATES = 500_000
+#: The whole check's worst case, seconds: every part stopped at its limit, plus this script's own start.
+TOTAL_SECONDS = 8 * 60
+#: Each part's time limit on the GPU host, seconds.
+BUDGETS = {
+    "cuda": 75,
+    "overhead mlp": 40,
+    "overhead cnn": 55,
+    "overhead agents": 90,
+    "throughput": 85,
+    "learning sgfd_sac": 60,
+    "learning ambs": 60,
+}
+#: What the script needs besides its parts (importing torch, writing the table).
+OWN_SECONDS = 15
+#: The same parts at toy sizes on the CPU (the agents' overhead left out): ceilings for a busy CI machine (on an
+#: idle one the whole smoke run takes about 2 minutes).
+SMOKE_BUDGETS = {
+    "cuda": 150,
+    "overhead mlp cnn": 150,
+    "throughput": 120,
+    "learning sgfd_sac": 120,
+    "learning ambs": 120,
+}
+#: Seconds a learning run measures updates for, once learning has started (the rest of its budget builds it).
+LEARNING_SECONDS = {False: 25.0, True: 5.0}
+LEARNING_ENV = "SGFD/walker-walk-v0"
 
 
 def run(command: list[str], budget: float) -> tuple[int, str, float]:
@@ -48,25 +79,31 @@ def _text(value: bytes | str | None) -> str:
     return value.decode(errors="replace") if isinstance(value, bytes) else (value or "")
 
 
-def cuda_tests(smoke: bool) -> list[str]:
-    code, output, seconds = run([sys.executable, "-m", "pytest", "-m", "cuda", "-q", "-rs", "tests"], 120)
+def _last_line(output: str) -> str:
+    lines = [line for line in output.splitlines() if line.strip()]
+    return lines[-1][:200] if lines else ""
+
+
+def cuda_tests(budgets: dict[str, float], smoke: bool) -> Iterator[str]:
+    # one process (-n 0): xdist's workers would each collect the whole suite for a handful of tests
+    command = [sys.executable, "-m", "pytest", "-m", "cuda", "-n", "0", "-q", "-rs", "-p", "no:cacheprovider", "tests"]
+    code, output, seconds = run(command, budgets["cuda"])
     summary = next((line for line in reversed(output.splitlines()) if re.search(r"passed|failed|skipped", line)), "")
-    verdict = "ok" if code == 0 else f"exit {code}"
-    return [f"| CUDA tests (`pytest -m cuda`) | {verdict} | {summary.strip(' =')} ({seconds:.0f} s) |"]
+    verdict, figures = "ok" if code == 0 else f"exit {code}", summary.strip(" =") or _last_line(output)
+    yield f"| CUDA tests (`pytest -m cuda`) | {verdict} | {figures} ({seconds:.0f} s) |"
 
 
-def overhead(smoke: bool) -> list[str]:
+def overhead(budgets: dict[str, float], smoke: bool) -> Iterator[str]:
     """bench/update_overhead.py, one policy per row (in smoke mode all three in one process, at toy sizes)."""
     if smoke:
         toy = ["--rounds", "1", "--round-steps", "1", "--warmup", "1", "--fill", "20", "--batch-size", "8"]
-        runs = [("mlp cnn", [*toy, "--image-size", "16", "--policies", "mlp", "cnn"], 60)]
+        runs = [("mlp cnn", [*toy, "--image-size", "16", "--policies", "mlp", "cnn"])]
     else:
-        runs = [(policy, ["--rounds", "5", "--policies", policy], budget) for policy, budget in OVERHEAD_BUDGETS]
-    rows = []
-    for label, flags, budget in runs:
-        code, output, seconds = run([sys.executable, "bench/update_overhead.py", *flags], budget)
+        runs = [(policy, ["--rounds", "4", "--policies", policy]) for policy in ("mlp", "cnn", "agents")]
+    for label, flags in runs:
+        code, output, seconds = run([sys.executable, "bench/update_overhead.py", *flags], budgets[f"overhead {label}"])
         if code != 0:
-            rows.append(f"| update_overhead {label} | exit {code} | {_last_line(output)} |")
+            yield f"| update_overhead {label} | exit {code} | {_last_line(output)} |"
             continue
         figures = [line.strip() for line in output.splitlines() if " / " in line and "x" in line]
         steps = [
@@ -74,27 +111,29 @@ def overhead(smoke: bool) -> list[str]:
             for cells in (line.split("|") for line in output.splitlines())
             if len(cells) > 3 and cells[1].strip() in ("SAC", "SGFD steady", "SGFD on AMBS", "SGFD on AMBS (before)")
         ]
-        rows.append(f"| update_overhead {label} | ok | {'; '.join(steps + figures)} ({seconds:.0f} s) |")
-    return rows
+        yield f"| update_overhead {label} | ok | {'; '.join(steps + figures)} ({seconds:.0f} s) |"
 
 
-OVERHEAD_BUDGETS = (("mlp", 60), ("cnn", 90), ("agents", 150))
-
-
-def throughput(smoke: bool) -> list[str]:
+def throughput(budgets: dict[str, float], smoke: bool) -> Iterator[str]:
     flags = ["--steps", "3", "--rounds", "1", "--benchmark-steps", "2", "--warmup", "1"] if smoke else ["--rounds", "2"]
-    code, output, seconds = run([sys.executable, "bench/env_throughput.py", *flags], 60 if smoke else 150)
+    code, output, seconds = run([sys.executable, "bench/env_throughput.py", *flags], budgets["throughput"])
     lines = [line.strip() for line in output.splitlines() if "steps/s" in line or "speed-up" in line]
     verdict = "ok" if code == 0 else f"exit {code}"
-    return [
+    yield (
         f"| env_throughput (MUJOCO_GL={os.environ.get('MUJOCO_GL', 'egl')}) | {verdict} | "
-        f"{'; '.join(lines[:4])} ({seconds:.0f} s) |"
-    ]
+        f"{'; '.join(lines[:4]) or _last_line(output)} ({seconds:.0f} s) |"
+    )
 
 
-def _last_line(output: str) -> str:
-    lines = [line for line in output.splitlines() if line.strip()]
-    return lines[-1][:200] if lines else ""
+def learning(budgets: dict[str, float], smoke: bool) -> Iterator[str]:
+    """Each agent's learning run in a subprocess of this script (``--learning-run``), stopped at its limit."""
+    for algo in ("sgfd_sac", "ambs"):
+        command = [sys.executable, __file__, "--learning-run", algo, *(["--smoke"] if smoke else [])]
+        code, output, seconds = run(command, budgets[f"learning {algo}"])
+        row = next((line for line in output.splitlines() if line.startswith(f"| {algo} on ")), None)
+        if code != 0 or row is None:
+            row = f"| {algo} learning run | exit {code} | {_last_line(output)} ({seconds:.0f} s) |"
+        yield row
 
 
 def learning_rate_of(algo: str, env_id: str, seconds: float, smoke: bool) -> str:
@@ -104,7 +143,7 @@ def learning_rate_of(algo: str, env_id: str, seconds: float, smoke: bool) -> str
     import torch as th
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from sgfd_zoo.experiment import SGFDExperimentManager, register_algorithms
+    from sgfd_zoo.experiment import SGFDExperimentManager
 
     class StopAfter(BaseCallback):
         """Counts updates from the first one, and stops ``seconds`` later."""
@@ -119,7 +158,6 @@ def learning_rate_of(algo: str, env_id: str, seconds: float, smoke: bool) -> str
                 self.start, self.first = time.perf_counter(), self.model._n_updates
             return self.start is None or time.perf_counter() - self.start < seconds
 
-    register_algorithms()
     device = "cuda" if th.cuda.is_available() and not smoke else "cpu"
     if smoke:
         th.set_num_threads(1)  # toy networks: more threads only contend
@@ -136,56 +174,78 @@ def learning_rate_of(algo: str, env_id: str, seconds: float, smoke: bool) -> str
             device=device,
             vec_env_type="dummy" if smoke else "subproc",
         )
-        model, _ = manager.setup_experiment()
-        if smoke:
-            model.learning_starts = 50
-        stop = StopAfter()
-        model.learn(10**9, callback=stop)
-        if stop.start is None:
-            raise RuntimeError(f"no gradient step in the run (learning_starts {model.learning_starts})")
-        rate = (model._n_updates - stop.first) / (time.perf_counter() - stop.start)
-        model.env.close()
+        try:
+            model, _ = manager.setup_experiment()
+            if smoke:
+                model.learning_starts = 50
+            stop = StopAfter()
+            model.learn(10**9, callback=stop)
+            if stop.start is None:
+                raise RuntimeError(f"no gradient step in the run (learning_starts {model.learning_starts})")
+            rate = (model._n_updates - stop.first) / (time.perf_counter() - stop.start)
+            model.env.close()
+        finally:
+            manager.release_run_folder()
     hours = PAPER_UPDATES / rate / 3600
     kind = "quick (states)" if smoke else "paper scale, 84x84, 3 frames, batch 128"
     return f"| {algo} on {env_id}, {kind}, {device} | ok | {rate:.1f} updates/s: a 500k-update run in {hours:.1f} h |"
 
 
-def learning(smoke: bool) -> list[str]:
-    rows = []
-    for algo in ("sgfd_sac", "ambs"):
-        try:
-            rows.append(learning_rate_of(algo, "SGFD/walker-walk-v0", 5 if smoke else 120, smoke))
-        except Exception as error:  # the table says what failed; the other checks still run
-            rows.append(f"| {algo} learning run | failed | {type(error).__name__}: {str(error)[:200]} |")
-    return rows
+# The parts in order; each yields its rows as they are measured.
+PARTS: tuple[Callable[[dict[str, float], bool], Iterator[str]], ...] = (cuda_tests, overhead, throughput, learning)
+
+
+class Table:
+    """The markdown table, each row appended (and flushed to the disk) as it comes.
+
+    :param path: the file, or None for stdout only
+    :param header: the lines above the rows
+    """
+
+    def __init__(self, path: Path | None, header: list[str]):
+        self.path, self.rows = path, []
+        print("\n".join(header), flush=True)
+        if path is not None:
+            path.write_text("\n".join(header) + "\n")
+
+    def add(self, row: str) -> None:
+        self.rows.append(row)
+        print(row, flush=True)
+        if self.path is not None:
+            with self.path.open("a") as handle:
+                handle.write(row + "\n")
+                handle.flush()
+                os.fsync(handle.fileno())
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--smoke", action="store_true", help="toy sizes on the CPU, under 2 minutes")
-    parser.add_argument("--out", type=Path, help="also write the table to this markdown file")
+    parser.add_argument("--out", type=Path, help="also write the table to this markdown file, row by row")
+    parser.add_argument("--learning-run", metavar="ALGO", help=argparse.SUPPRESS)  # one learning row (a part)
     args = parser.parse_args()
     if args.smoke:  # the subprocesses' toy networks on one thread each: more only contend
         os.environ["OMP_NUM_THREADS"] = "1"
+    if args.learning_run is not None:
+        print(learning_rate_of(args.learning_run, LEARNING_ENV, LEARNING_SECONDS[args.smoke], args.smoke), flush=True)
+        return
     import torch as th
 
     gpu = th.cuda.get_device_name(0) if th.cuda.is_available() else "no CUDA device"
+    budgets = SMOKE_BUDGETS if args.smoke else BUDGETS
     header = [
         f"device check, {time.strftime('%Y-%m-%d %H:%M')}: {gpu}, {os.cpu_count()} CPU cores"
-        + (" (--smoke: toy sizes, no speed figures)" if args.smoke else ""),
+        + (" (--smoke: toy sizes, no speed figures)" if args.smoke else "")
+        + f"; parts stopped at {sum(budgets.values()):.0f} s in all",
         "",
         "| check | result | figures |",
         "|---|---|---|",
     ]
-    rows = []
-    for check in (cuda_tests, overhead, throughput, learning):
-        rows += check(args.smoke)
-        print(rows[-1], flush=True)
-    table = "\n".join(header + rows) + "\n"
-    print("\n" + table)
-    if args.out is not None:
-        args.out.write_text(table)
-    if any("| failed |" in row or "| exit" in row for row in rows):
+    table = Table(args.out, header)
+    for part in PARTS:
+        for row in part(budgets, args.smoke):
+            table.add(row)
+    if any("| failed |" in row or "| exit" in row for row in table.rows):
         sys.exit(1)
 
 

@@ -1,12 +1,13 @@
-"""The zoo's error type and its argument checks, in one place, with no heavy import (plotting needs them too)."""
+"""The zoo's error type and its argument checks, in one place, with no heavy import (plotting and ``-h`` need
+them too: the env registry is imported only to check an env id)."""
 
 from __future__ import annotations
 
 import difflib
+import os
 import shlex
 from collections.abc import Iterable, Sequence
-
-import sgfd_envs
+from pathlib import Path
 
 
 class ZooError(Exception):
@@ -39,6 +40,8 @@ def check_env_id(env_id: str | None, flag: str = "--env") -> str:
     :param env_id: the value given
     :param flag: the option it came from
     """
+    import sgfd_envs
+
     if env_id not in sgfd_envs.ENV_IDS:
         known = ", ".join(sgfd_envs.ENV_IDS)
         if env_id is None:
@@ -47,6 +50,24 @@ def check_env_id(env_id: str | None, flag: str = "--env") -> str:
         hint = f" (did you mean {close[0]}?)" if close else ""
         raise ZooError(f"{flag} {env_id!r} is not a registered id{hint}; choose from {known}")
     return env_id
+
+
+def check_log_folder(flag: str, folder: Path) -> None:
+    """A ZooError unless run folders can be made in ``folder``: a folder (or one to create) that this process may
+    write, on a file system mounted for writing.
+
+    :param flag: the option it came from, e.g. ``-f``
+    :param folder: the log folder
+    """
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ZooError(f"{flag} {folder}: is a file, not a folder; give a log folder (made if missing)")
+    existing = next(path for path in [folder, *folder.absolute().parents] if path.exists())
+    if not existing.is_dir():
+        raise ZooError(f"{flag} {folder}: {existing} is a file, so the folder cannot be made")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        where = "it is" if folder == existing else f"{existing} is"
+        raise ZooError(f"{flag} {folder}: cannot be written ({where} read-only for this user or its file system)")
 
 
 def checked_names(flag: str, values: Sequence[str], known: Sequence[str]) -> list[str]:

@@ -8,31 +8,34 @@ is its seed unless that folder already holds another seed's run. Running the sam
 the sweep: finished runs are skipped, and unfinished ones continue from their last checkpoint (one none of
 whose checkpoints verifies starts again from step 0, saying so in its log). Ctrl-C stops each running run
 at a checkpoint, as it stops ``sgfd-zoo train``. A run folder with unreadable files is reported and planned
-around; if the progress board dies, the runs go on without live progress.
+around; a run another process writes (its lock held) is left alone and reported; if the progress board dies,
+the runs go on without live progress.
+
+Exit status: 0 when every run finished; 1 when one failed or was left alone; 75 when the Ray cluster went away
+(the runs keep their checkpoints); 130 on Ctrl-C. Each but 0 ends with a summary (what finished, what failed
+and why, what stopped at which checkpoint) and the command that continues the sweep.
+
+``--address`` attaches to a ``ray start`` cluster; when it uses Ray's token authentication (a ``ray start`` that
+finds a token turns it on), this machine needs the cluster's token: in ~/.ray/auth_token, RAY_AUTH_TOKEN or
+RAY_AUTH_TOKEN_PATH.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import logging
 import math
 import os
-import socket
-import sys
-import time
-import traceback
-from collections.abc import Collection, Iterator, Sequence
-from dataclasses import dataclass
+import shlex
+from collections.abc import Collection, Sequence
 from pathlib import Path
-from typing import Any
 
 import sgfd_envs  # before anything imports dm_control: it picks MuJoCo's headless GL backend
 from sgfd_zoo import evaluate, training
 from sgfd_zoo.algos import SGFD_ALGOS
-from sgfd_zoo.arguments import TrainingStopped, ZooError, checked_names, flag_value, has_flag
-from sgfd_zoo.progress import LiveView, ProgressBoard, progress_block, returns_text
-from sgfd_zoo.runs import NoUsableCheckpoint, RunFolder, find_runs, runs_by_id
+from sgfd_zoo.arguments import ZooError, check_log_folder, checked_names, flag_value, has_flag
+from sgfd_zoo.ray_runs import ClusterLost, run_jobs
+from sgfd_zoo.runs import find_runs
+from sgfd_zoo.sweep_plan import Job, locked_runs, plan
 
 # Train flags the sweep sets per run itself, and what to use instead.
 SWEEP_OWNED_FLAGS = {
@@ -46,193 +49,6 @@ SWEEP_OWNED_FLAGS = {
     "--optimize-hyperparameters": "sgfd-zoo optimize",
 }
 MAX_SEED = 2**32 - 1  # numpy's limit, which rl-zoo3 seeds with
-BOARD_NAME = "sgfd-zoo sweep progress"  # the progress board actor, in this sweep's Ray namespace
-
-
-@dataclass(frozen=True)
-class Job:
-    """
-    One run of the sweep.
-
-    :param algo: Algorithm key
-    :param env_id: SGFD env id
-    :param seed: Training seed
-    :param run_id: The run folder is ``<folder>/<algo>/<EnvName>_<run_id>``
-    :param folder: The sweep's log folder (absolute)
-    """
-
-    algo: str
-    env_id: str
-    seed: int
-    run_id: int
-    folder: Path
-
-    @property
-    def run(self) -> RunFolder:
-        return RunFolder.at(self.folder, self.algo, self.env_id, self.run_id)
-
-    @property
-    def run_dir(self) -> Path:
-        return self.run.path
-
-    @property
-    def log_file(self) -> Path:
-        return self.run.log_file
-
-    def __str__(self) -> str:
-        return f"{self.algo} on {self.env_id} seed {self.seed}"
-
-    @property
-    def name(self) -> str:
-        """Short, for the progress lines."""
-        return f"{self.algo} {self.env_id.split('/')[-1].removesuffix('-v0')} seed {self.seed}"
-
-
-# -- planning ------------------------------------------------------------------------------------
-
-
-def plan(
-    folder: Path,
-    algos: Sequence[str],
-    env_ids: Sequence[str],
-    seeds: Sequence[int],
-    recorded: Collection[tuple[str, str, int]] = (),
-) -> tuple[list[Job], list[tuple[str, str, int]], list[str]]:
-    """
-    The runs still to train (new or to resume), the (algo, env, seed) already finished in ``folder`` or
-    ``recorded``, and
-    one line per unreadable file of a run folder (such a folder is read as if that file were absent: a run
-    whose args are unreadable has no known seed, one whose checkpoint index is unreadable resumes from the
-    checkpoint files it has).
-
-    :param folder: Log folder (absolute)
-    :param algos: Algorithm keys
-    :param env_ids: SGFD env ids
-    :param seeds: Training seeds
-    :param recorded: (algo, env, seed) finished elsewhere (a study's records, from an earlier session)
-    """
-    problems = [problem for run in find_runs(folder, algos, env_ids, finished=False) for problem in run.problems]
-    finished = {(run.algo, run.env_id, run.seed) for run in find_runs(folder, algos, env_ids)} | set(recorded)
-    jobs, done = [], []
-    assigned: dict[tuple[str, str], set[int]] = {}
-    # Seed by seed: the first runs to finish fill a whole table for one seed, not many seeds of one cell.
-    for seed in seeds:
-        for env_id in env_ids:
-            for algo in algos:
-                if (algo, env_id, seed) in finished:
-                    done.append((algo, env_id, seed))
-                    continue
-                taken = assigned.setdefault((algo, env_id), set())
-                run_id = choose_run_id(folder, algo, env_id, seed, [*(s + 1 for s in seeds), *taken])
-                taken.add(run_id)
-                jobs.append(Job(algo, env_id, seed, run_id, folder))
-    return jobs, done, problems
-
-
-def choose_run_id(folder: Path, algo: str, env_id: str, seed: int, reserved: Sequence[int]) -> int:
-    """
-    The run id of an unfinished ``seed``, decided here (in one process) because rl-zoo3's own choice,
-    newest id + 1, races when runs start together. In order of preference:
-
-    1. the unfinished run of this seed with the furthest checkpoint (it will be resumed);
-    2. an unfinished run of this seed without a checkpoint (restarted there, so that failed attempts do
-       not pile up as folders; it has no model to lose), the one with id ``seed + 1`` first;
-    3. ``seed + 1`` (rl-zoo3 numbers runs from 1; ``enjoy --exp-id 0`` means the newest), unless that
-       folder holds another seed's run (from ``sgfd-zoo train``, say);
-    4. one more than any id in the folder and any of ``reserved`` (the sweep's ids, ids already given).
-
-    :param folder: the sweep's log folder
-    :param algo: algorithm key
-    :param env_id: SGFD env id
-    :param seed: Training seed
-    :param reserved: Ids a new id must not take
-    """
-    existing = runs_by_id(folder, algo, env_id)
-    mine = {run_id: run for run_id, run in existing.items() if run.seed == seed}
-    checkpoints = {run_id: run.checkpoint for run_id, run in mine.items()}
-    resumable = [(checkpoint.num_timesteps, run_id) for run_id, checkpoint in checkpoints.items() if checkpoint]
-    if resumable:
-        return max(resumable)[1]
-    preferred = seed + 1
-    if mine:
-        return preferred if preferred in mine else max(mine)
-    if preferred not in existing or existing[preferred].seed is None:
-        return preferred
-    return max([*existing, *reserved, preferred]) + 1
-
-
-# -- one run, in a Ray worker -----------------------------------------------------------------------
-
-
-def train_job(job: Job, train_args: list[str], cwd: str, board: Any = None) -> bool:
-    """
-    The Ray task: ``sgfd-zoo train`` of ``job`` in this worker process, its output appended to the job's
-    log file, its progress sent to ``board``. Resumes from the run's checkpoint when it has one, and starts
-    it again from step 0 when none of its checkpoints verifies. Returns whether it resumed.
-
-    :param job: The run
-    :param train_args: Flags for ``sgfd-zoo train`` besides --algo, --env, --seed, -f
-    :param cwd: The driver's working directory (relative paths in ``train_args`` are relative to it)
-    :param board: A ``ProgressBoard`` actor handle, or None
-    """
-    if os.path.isdir(cwd):
-        os.chdir(cwd)
-    # Decided here, not when planning: a retry after a crash continues from the newest checkpoint.
-    resume = job.run.checkpoint is not None
-    argv = ["--algo", job.algo, "--env", job.env_id, "--seed", str(job.seed), "-f", str(job.folder)]
-    argv += ["--run-id", str(job.run_id), *train_args]
-    reporter = None if board is None else (lambda report: board.report.remote(job.name, report))
-    job.log_file.parent.mkdir(parents=True, exist_ok=True)
-    with _output_to(job.log_file):
-        what = "resuming from its checkpoint" if resume else "new run"
-        print(f"=== sgfd-zoo sweep, {time.strftime('%Y-%m-%d %H:%M:%S')}: {job} in {job.run_dir} ({what})", flush=True)
-        try:
-            try:
-                training.train([*argv, "--resume"] if resume else argv, progress_reporter=reporter)
-            except NoUsableCheckpoint as error:
-                print(f"{error}\n=== so starting it again from step 0", flush=True)
-                resume = False
-                training.train(argv, progress_reporter=reporter)
-        except TrainingStopped as error:
-            print(f"sgfd-zoo train: {error}", flush=True)  # where it stopped and how it goes on, in one line
-            raise
-        except SystemExit as error:
-            # argparse exits on bad flags; a SystemExit would end the Ray worker (a "crash" Ray retries).
-            sys.stderr.flush()
-            raise RuntimeError(f"sgfd-zoo train exited with status {error.code}: {_last_line(job.log_file)}") from None
-        except BaseException:
-            traceback.print_exc()
-            raise
-    if not job.run.finished:
-        raise RuntimeError(f"sgfd-zoo train ended, but {job.run_dir} is not a finished run")
-    return resume
-
-
-@contextlib.contextmanager
-def _output_to(path: Path) -> Iterator[None]:
-    """Send this process's stdout and stderr (file descriptors, so C libraries' output too) to ``path``."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = os.dup(1), os.dup(2)
-    log = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-    try:
-        os.dup2(log, 1)
-        os.dup2(log, 2)
-        yield
-    finally:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (log, *saved):
-            os.close(fd)
-
-
-def _last_line(path: Path, tail: int = 4096) -> str:
-    with path.open("rb") as handle:
-        handle.seek(max(path.stat().st_size - tail, 0))
-        lines = [line.strip() for line in handle.read().decode(errors="replace").splitlines()]
-    return next((line for line in reversed(lines) if line), "")
 
 
 # -- the command ------------------------------------------------------------------------------------
@@ -308,8 +124,7 @@ def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
     local_cpus = args.num_cpus or os.cpu_count() or 1
     if args.address is None and args.cpus_per_run > local_cpus:
         raise ZooError(f"--cpus-per-run {args.cpus_per_run:g} is more than the {local_cpus} CPUs of the local instance")
-    if args.folder.exists() and not args.folder.is_dir():
-        raise ZooError(f"--folder {args.folder} is not a folder")
+    check_log_folder("--folder", args.folder)
     args.folder = args.folder.resolve()
     # torch's threads per run follow the CPUs Ray reserves for it, unless the user says otherwise.
     if args.progress_interval <= 0:
@@ -319,12 +134,21 @@ def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
     return args, train_args
 
 
-def main(argv: list[str], recorded: Collection[tuple[str, str, int]] = ()) -> int:
-    """``sgfd-zoo sweep``.
+#: The exit code of a sweep whose Ray cluster went away: a temporary failure (sysexits' EX_TEMPFAIL); the same
+#: command continues the sweep on a running cluster.
+EXIT_CLUSTER_LOST = 75
+
+
+def main(argv: list[str], recorded: Collection[tuple[str, str, int]] = (), rerun: str | None = None) -> int:
+    """``sgfd-zoo sweep``. Exits 0 when every run finished, 1 when one failed or was refused (another process
+    writes it), 75 when the Ray cluster went away, 130 on Ctrl-C; each but 0 with a summary and the command that
+    continues the sweep.
 
     :param argv: its command line
     :param recorded: (algo, env, seed) finished elsewhere, not to train (a study's records)
+    :param rerun: the command that continues the sweep (default: ``sgfd-zoo sweep`` with ``argv``)
     """
+    rerun = rerun or shlex.join(["sgfd-zoo", "sweep", *argv])
     args, train_args = parse_args(argv)
     jobs, done, problems = plan(args.folder, args.algos, args.envs, args.seeds, recorded)
     for problem in problems:
@@ -339,170 +163,60 @@ def main(argv: list[str], recorded: Collection[tuple[str, str, int]] = ()) -> in
     for algo, env_id in dict.fromkeys((job.algo, job.env_id) for job in jobs):
         argv = ["--algo", algo, "--env", env_id, "-f", str(args.folder), "--seed", "0", *train_args]
         training.train(argv, check_only=True)
-    failures: list[tuple[Job, str]] = []
-    if jobs:
+    failures = locked_runs(jobs)  # another process writes them: not started
+    for job, reason in failures:
+        print(f"sweep: {job}: {reason}")
+    runnable = [job for job in jobs if job not in dict(failures)]
+    lost = None
+    if runnable:
         try:
-            failures = run_jobs(jobs, train_args, args)
+            failures += run_jobs(runnable, train_args, args)
         except KeyboardInterrupt:
-            print("\nsweep: interrupted; the same command resumes it (unfinished runs from their checkpoints)")
+            print(
+                f"\nsweep: interrupted; the same command resumes it (unfinished runs from their checkpoints): {rerun}"
+            )
             return 130
-    if not args.no_evaluate:
+        except ClusterLost as error:
+            lost = f"the Ray cluster{'' if args.address is None else f' at {args.address}'} went away: {error}"
+    if lost is None and not args.no_evaluate:
         _evaluate(args, train_args)
-    print(f"\nsweep: {len(jobs) - len(failures)} trained, {len(done)} already finished, {len(failures)} failed")
+    return summary(jobs, done, failures, lost, rerun)
+
+
+def summary(
+    jobs: list[Job], done: list[tuple[str, str, int]], failures: list[tuple[Job, str]], lost: str | None, rerun: str
+) -> int:
+    """Print what became of each run (finished, failed and why, stopped at which checkpoint, not started) and,
+    unless all finished, the command that continues the sweep; returns the sweep's exit code.
+
+    :param jobs: the runs the sweep trained
+    :param done: those finished before it started
+    :param failures: the failed runs, with why
+    :param lost: why the cluster counts as gone, or None
+    :param rerun: the command that continues the sweep
+    """
+    failed = dict(failures)
+    trained = [job for job in jobs if job not in failed and job.run.finished]
+    stopped = [job for job in jobs if job not in failed and job not in trained]
+    counts = f"{len(trained)} trained, {len(done)} already finished, {len(failed)} failed"
+    print(f"\nsweep: {counts}" + (f", {len(stopped)} not finished" if stopped else ""))
     for job, error in failures:
-        print(f"  FAILED {job}: {error} (log: {job.log_file})")
-    return 1 if failures else 0
-
-
-def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -> list[tuple[Job, str]]:
-    """Run ``jobs`` as Ray tasks, showing their progress; returns the failed ones with a one-line reason.
-    Ray is shut down after. Ctrl-C stops the running runs at a checkpoint each, then raises
-    KeyboardInterrupt; a second Ctrl-C stops them at once."""
-    import ray
-
-    _start_ray(args)
-    try:
-        board = ray.remote(num_cpus=0)(ProgressBoard).options(name=BOARD_NAME).remote()
-        task = ray.remote(
-            num_cpus=args.cpus_per_run,
-            num_gpus=args.gpus_per_run,
-            # A fresh process per run: rl-zoo3's train() sets process-wide state (torch threads, seeds,
-            # sys.argv, the algorithm table), and a long run's memory is given back when it ends.
-            max_calls=1,
-            max_retries=args.max_retries,
-            retry_exceptions=False,
-        )(train_job)
-        cwd = os.getcwd()
-        pending = {task.options(name=f"sweep {job}").remote(job, train_args, cwd, board): job for job in jobs}
-        failures: list[tuple[Job, str]] = []
-        with LiveView(args.progress_interval) as view:
-            try:
-                _wait_for(pending, jobs, board, view, failures)
-            except KeyboardInterrupt:
-                _stop_at_checkpoints(pending, view)
-                raise
-        return failures
-    finally:
-        ray.shutdown()
-
-
-def _wait_for(
-    pending: dict[Any, Job], jobs: list[Job], board: Any, view: LiveView, failures: list[tuple[Job, str]]
-) -> None:
-    """Until no run is ``pending``: show their progress, a line per run as it ends, the failed ones added to
-    ``failures``."""
-    import ray
-
-    status: dict[str, str] = {}
-    reports: dict[str, dict[str, Any]] = {}
-    while pending:
-        done, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
-        if board is not None:
-            try:
-                reports = ray.get(board.snapshot.remote())
-            except ray.exceptions.RayActorError as error:
-                # Only the live view is lost: the runs report to a dead actor, which Ray drops.
-                board, reports = None, {}
-                view.message(f"sweep: the progress board stopped ({_reason(error)}); the runs go on")
-        for ref in done:
-            job = pending.pop(ref)
-            count = f"[{len(jobs) - len(pending)}/{len(jobs)}]"
-            report = reports.get(job.name, {})
-            try:
-                resumed = ray.get(ref)
-            except ray.exceptions.RayError as error:
-                failures.append((job, _reason(error)))
-                status[job.name] = "FAILED"
-                view.message(f"{count} FAILED {job}: {failures[-1][1]} (log: {job.log_file})")
-            else:
-                status[job.name] = "finished"
-                evaluated = returns_text(report)
-                view.message(
-                    f"{count} finished {job}{' (resumed)' if resumed else ''}"
-                    + (f": {evaluated}" if evaluated else "")
-                    + f" ({job.run_dir})"
-                )
-        view.show(progress_block([job.name for job in jobs], reports, status), force=not pending)
-
-
-def _stop_at_checkpoints(pending: dict[Any, Job], view: LiveView) -> None:
-    """Stop every ``pending`` run as a Ctrl-C stops ``sgfd-zoo train`` (at a checkpoint, at a step boundary),
-    wait for them, and say where each stopped. A waiting run is dropped. A second Ctrl-C stops the waiting
-    (then ``ray.shutdown`` ends the runs where they are)."""
-    import ray
-
-    view.message(
-        "sweep: interrupted; the running runs stop at a checkpoint each (Ctrl-C again: at once, losing the steps "
-        "since their last checkpoint)"
-    )
-    # A running Ray task's cancel raises KeyboardInterrupt in it through its SIGINT handler: the train's own
-    # deferred Ctrl-C, which checkpoints and stops. A terminal's Ctrl-C does not reach the workers themselves
-    # (each has a process group of its own), so this is their only one.
-    before = {job: job.run.checkpoint for job in pending.values()}
-    for ref in pending:
-        ray.cancel(ref)
-    ray.wait(list(pending), num_returns=len(pending))
-    for job in pending.values():
-        run = job.run
-        checkpoint = None if run.finished else run.checkpoint
-        if run.finished:
-            view.message(f"finished {job} ({job.run_dir})")
-        elif checkpoint is not None and checkpoint != before[job]:
-            view.message(f"stopped {job} at its checkpoint at {checkpoint.num_timesteps} steps ({job.run_dir})")
-
-
-def _start_ray(args: argparse.Namespace) -> None:
-    import ray
-
-    # Each run's output is in its log file; Ray's own warnings (token authentication, ...) only when asked for.
-    quiet = {"log_to_driver": False, "logging_level": logging.WARNING if args.ray_logs else logging.ERROR}
-    if args.address is not None:
-        _check_reachable(args.address)
-        try:
-            ray.init(address=args.address, **quiet)
-        except (ConnectionError, ValueError, RuntimeError) as error:
-            raise ZooError(f"--address {args.address}: no Ray cluster to connect to ({error})") from None
-        cpus, gpus = ray.cluster_resources().get("CPU", 0), ray.cluster_resources().get("GPU", 0)
-        print(f"sweep: Ray cluster at {args.address}: {cpus:g} CPUs, {gpus:g} GPUs")
-        return
-    # "local": a new instance even if `ray start` left one running on this machine.
-    ray.init(address="local", num_cpus=args.num_cpus, include_dashboard=False, **quiet)
-    cpus, gpus = ray.cluster_resources().get("CPU", 0), ray.cluster_resources().get("GPU", 0)
-    if args.ray_logs:
-        print(f"sweep: local Ray instance: {cpus:g} CPUs, {gpus:g} GPUs")
-    if args.gpus_per_run > gpus:
-        # Ray would wait forever for a GPU no node of this instance has.
-        ray.shutdown()
-        raise ZooError(f"--gpus-per-run {args.gpus_per_run:g}: Ray sees {gpus:g} GPUs on this machine")
-
-
-def _check_reachable(address: str, timeout: float = 10.0) -> None:
-    """
-    Refuse a host:port nothing listens on: Ray itself retries such an address for minutes (13 on our
-    machine) before it gives up. Other forms ('auto', 'ray://...') are left to Ray.
-
-    :param address: The --address value
-    :param timeout: Seconds to wait for a TCP connection
-    """
-    host, _, port = address.rpartition(":")
-    if "://" in address or not host or not port.isdigit():
-        return
-    try:
-        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
-            pass
-    except OSError as error:
-        raise ZooError(f"--address {address}: no Ray cluster answers there ({error})") from None
-
-
-def _reason(error: Exception) -> str:
-    """One line for the summary: the run's own exception when it raised one, else what Ray says."""
-    cause = getattr(error, "cause", None)
-    if isinstance(cause, BaseException):
-        text, name = str(cause), type(cause).__name__
-    else:
-        text, name = str(error), type(error).__name__
-    lines = [line.strip() for line in text.splitlines() if line.strip()]
-    return f"{name}: {lines[0] if lines else '(no message)'}"
+        checkpoint = job.run.checkpoint
+        kept = "no checkpoint" if checkpoint is None else f"its checkpoint at {checkpoint.num_timesteps} steps is kept"
+        print(f"  FAILED {job}: {error} ({kept}; log: {job.log_file})")
+    for job in stopped:
+        checkpoint = job.run.checkpoint
+        state = (
+            "not started" if checkpoint is None else f"stopped at its checkpoint at {checkpoint.num_timesteps} steps"
+        )
+        print(f"  {state}: {job} ({job.run_dir})")
+    if lost is not None:
+        print(f"sweep: {lost}; every checkpoint is kept: on a running cluster, this continues the sweep: {rerun}")
+        return EXIT_CLUSTER_LOST
+    if failures or stopped:
+        print(f"sweep: not every run finished; once the failures are fixed, this continues the sweep: {rerun}")
+        return 1
+    return 0
 
 
 def _evaluate(args: argparse.Namespace, train_args: list[str]) -> None:

@@ -2,14 +2,15 @@
 
 ``sgfd-zoo train``, ``optimize`` and the sweep's Ray tasks all call :func:`train`; every rl-zoo3 flag works.
 rl-zoo3 builds its ExperimentManager by name from ``sys.argv``, so we hand it :class:`SGFDExperimentManager`
-and the arguments for the duration of the call.
+and the arguments for the duration of the call. The zoo's own flags, and the values it checks itself (steps,
+frequencies, the seed, the log folder), are read here first, without importing rl-zoo3: ``-h`` is instant and
+a bad value is refused before anything loads.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import functools
 import io
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -17,7 +18,104 @@ from pathlib import Path
 from typing import Any
 
 from sgfd_zoo.algos import SGFD_ALGOS
-from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id, flag_value, has_flag
+from sgfd_zoo.arguments import ZooError, check_env_id, check_log_folder, flag_value, has_flag, without_flags
+
+MAX_SEED = 2**32 - 1  # numpy's limit, which rl-zoo3 seeds with
+# The zoo's own flags: not rl-zoo3's, taken out before its parser sees the command line.
+ZOO_SWITCHES = ("--quick", "--resume", "--no-progress")
+ZOO_OPTIONS = ("--algo", "--env", "--run-id", "--classifier-start")
+
+
+def train_parser(prog: str, optimize: bool = False) -> argparse.ArgumentParser:
+    """The options of ``sgfd-zoo train`` (``optimize``): the zoo's own, and rl-zoo3's that the zoo documents and
+    checks. Any other rl-zoo3 option is passed on unread."""
+    parser = argparse.ArgumentParser(
+        prog=prog,
+        description="Train an agent with rl-zoo3 on an SGFD env id, with the zoo's hyperparameters"
+        + (", searching them with Optuna." if optimize else "."),
+        epilog="rl-zoo3's other train options are passed on to it unchanged (e.g. -tb, --vec-env, --log-interval, "
+        "--n-eval-envs, --track).",
+    )
+    zoo = parser.add_argument_group("the zoo's options")
+    algos = ", ".join(SGFD_ALGOS)
+    zoo.add_argument("--algo", default="sgfd_sac", choices=SGFD_ALGOS, metavar="ALGO", help=f"one of: {algos}")
+    zoo.add_argument("--env", metavar="ENV_ID", help="a registered id (sgfd_envs.ENV_IDS), e.g. SGFD/MT-walker-walk-v0")
+    zoo.add_argument("--quick", action="store_true", help="the quick configuration (sgfd_zoo/hyperparams/quick)")
+    zoo.add_argument("--resume", action="store_true", help="continue the newest run from its last checkpoint")
+    zoo.add_argument("--no-progress", action="store_true", help="no progress bar")
+    zoo.add_argument(
+        "--classifier-start",
+        type=int,
+        metavar="STEPS",
+        help="env steps before SGFD's domain classifier starts training (the SGFD algorithms' classifier_start; "
+        "the others have none, so a sweep may mix them)",
+    )
+    zoo.add_argument(
+        "--run-id",
+        type=int,
+        metavar="ID",
+        help="write to (and --resume) the run folder <EnvName>_<id>; default: a new folder",
+    )
+    run = parser.add_argument_group("the run (rl-zoo3's options, checked by the zoo)")
+    run.add_argument(
+        "-n", "--n-timesteps", type=int, metavar="STEPS", help="steps to train (default: the configuration's)"
+    )
+    run.add_argument("-f", "--log-folder", default="logs", metavar="FOLDER", help="log folder (default: logs)")
+    run.add_argument("--seed", type=int, default=-1, help=f"0..{MAX_SEED}; -1 (default): a random one")
+    run.add_argument(
+        "--eval-freq", type=int, default=25000, metavar="STEPS", help="evaluate every n steps; <= 0: never"
+    )
+    run.add_argument("--eval-episodes", type=int, default=5, metavar="N", help="episodes per split and evaluation")
+    run.add_argument(
+        "--save-freq", type=int, metavar="STEPS", help="checkpoint every n steps; default: a fifth of the run, <= 100k"
+    )
+    run.add_argument("--save-replay-buffer", action="store_true", help="keep the replay buffer with the final model")
+    run.add_argument(
+        "-params", "--hyperparams", nargs="+", metavar="KEY:VALUE", help="override hyperparameters, e.g. batch_size:64"
+    )
+    run.add_argument(
+        "--env-kwargs",
+        nargs="+",
+        metavar="KEY:VALUE",
+        help="env settings merged into the configuration's, e.g. image_size:64",
+    )
+    run.add_argument(
+        "--eval-env-kwargs",
+        nargs="+",
+        metavar="KEY:VALUE",
+        help="env settings of the evaluation envs (default: the same)",
+    )
+    run.add_argument("-conf", "--conf-file", metavar="YAML", help="a yaml of hyperparameters instead of the zoo's")
+    run.add_argument(
+        "-i", "--trained-agent", metavar="ZIP", help="a model zip to continue training in a new run folder"
+    )
+    run.add_argument("--num-threads", type=int, metavar="N", help="torch's CPU threads")
+    run.add_argument("--device", help="cpu, cuda, cuda:1, ... (default: auto)")
+    run.add_argument("--verbose", type=int, metavar="LEVEL", help="0: quiet, 1: rl-zoo3's output (default)")
+    if optimize:
+        search = parser.add_argument_group("the search (rl-zoo3's options)")
+        search.add_argument("--n-trials", type=int, help="trials of this process")
+        search.add_argument("--n-jobs", type=int, help="parallel trials")
+        search.add_argument("--storage", help="an Optuna storage shared by processes (a journal .log file, a URL)")
+        search.add_argument("--study-name", help="the study's name in the storage")
+        search.add_argument("--sampler", choices=["random", "tpe", "auto"], help="Optuna's sampler")
+        search.add_argument("--pruner", choices=["halving", "median", "none"], help="Optuna's pruner")
+    return parser
+
+
+def check_run_arguments(args: argparse.Namespace) -> None:
+    """The values the zoo checks itself, each refused in one line naming the flag, the value and what fits."""
+    if args.n_timesteps is not None and args.n_timesteps < 1:
+        raise ZooError(f"-n {args.n_timesteps}: expected a number of steps >= 1 (leave -n out for the configuration's)")
+    if not (args.seed == -1 or 0 <= args.seed <= MAX_SEED):
+        raise ZooError(f"--seed {args.seed}: expected 0..{MAX_SEED}, or -1 for a random seed")
+    if args.eval_episodes < 1:
+        raise ZooError(f"--eval-episodes {args.eval_episodes}: expected at least 1 episode")
+    if args.classifier_start is not None and args.classifier_start < 0:
+        raise ZooError(f"--classifier-start {args.classifier_start}: expected a number of steps >= 0")
+    if args.run_id is not None and args.run_id < 0:
+        raise ZooError(f"--run-id {args.run_id}: expected a run number >= 0")
+    check_log_folder("-f", Path(args.log_folder))
 
 
 def train(
@@ -33,58 +131,55 @@ def train(
     :param progress_reporter: receives progress reports while training (the sweep's live view)
     :param check_only: read and check the configuration (a ZooError if it does not fit), build nothing
     """
+    argv = list(argv)
+    parser = train_parser(f"sgfd-zoo {'optimize' if optimize else 'train'}", optimize)
+    if "-h" in argv or "--help" in argv:
+        parser.print_help()
+        return 0
+    ours, _ = parser.parse_known_args(argv)
+    check_env_id(ours.env)
+    check_run_arguments(ours)
+
     import rl_zoo3.train
 
     from sgfd_zoo.experiment import SGFDExperimentManager, register_algorithms
 
-    parser = argparse.ArgumentParser(prog=f"sgfd-zoo {'optimize' if optimize else 'train'}", add_help=False)
-    parser.add_argument("--algo", default="sgfd_sac", choices=sorted(SGFD_ALGOS), help="algorithm key")
-    parser.add_argument("--env", help="a registered id (sgfd_envs.ENV_IDS), e.g. SGFD/MT-walker-walk-v0")
-    parser.add_argument("--quick", action="store_true", help="the quick configuration (sgfd_zoo/hyperparams/quick)")
-    parser.add_argument("--resume", action="store_true", help="continue the newest run from its last checkpoint")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument(
-        "--classifier-start",
-        type=int,
-        metavar="STEPS",
-        help="env steps before SGFD's domain classifier starts training (classifier_start of the SGFD algorithms; "
-        "the others have none, so a sweep may mix them)",
-    )
-    parser.add_argument(
-        "--run-id", type=int, help="write to (and --resume) the run folder <EnvName>_<id>; default: newest id + 1"
-    )
-    ours, rest = parser.parse_known_args(list(argv))
-    if "-h" in rest or "--help" in rest:
-        parser.print_help()
-        print("\nrl-zoo3's options follow (all accepted):\n")
-    else:
-        check_env_id(ours.env)
-        check_at_least("--classifier-start", ours.classifier_start, 0)
-    rest = ["--algo", ours.algo, "--env", str(ours.env), *rest]
+    rest = ["--algo", ours.algo, "--env", str(ours.env), *without_flags(argv, ZOO_SWITCHES, ZOO_OPTIONS)]
     if optimize:
         rest += ["-optimize"] + ([] if has_flag(rest, "--no-optim-plots") else ["--no-optim-plots"])
-
     register_algorithms()
-    manager = functools.partial(
-        SGFDExperimentManager,
-        quick=ours.quick,
-        resume=ours.resume,
-        progress=False if ours.no_progress else None,
-        run_id=ours.run_id,
-        progress_reporter=progress_reporter,
-        check_only=check_only,
-        command=list(argv),
-        default_save_freq=not has_flag(rest, "--save-freq"),
-        classifier_start=ours.classifier_start,
-    )
+    managers: list[SGFDExperimentManager] = []
+
+    def manager(*args: Any, **kwargs: Any) -> SGFDExperimentManager:
+        made = SGFDExperimentManager(
+            *args,
+            quick=ours.quick,
+            resume=ours.resume,
+            progress=False if ours.no_progress else None,
+            run_id=ours.run_id,
+            progress_reporter=progress_reporter,
+            check_only=check_only,
+            command=argv,
+            default_save_freq=ours.save_freq is None,
+            default_eval_freq=not has_flag(argv, "--eval-freq"),
+            classifier_start=ours.classifier_start,
+            **kwargs,
+        )
+        managers.append(made)
+        return made
+
     quiet = contextlib.redirect_stdout(io.StringIO()) if check_only else contextlib.nullcontext()
-    with replaced(rl_zoo3.train, "ExperimentManager", manager), command_line(parser.prog, rest), quiet:
-        rl_zoo3.train.train()
+    try:
+        with replaced(rl_zoo3.train, "ExperimentManager", manager), command_line(parser.prog, rest), quiet:
+            rl_zoo3.train.train()
+    finally:
+        for made in managers:  # whatever ended the run: its folder's lock is given back
+            made.release_run_folder()
     return 0
 
 
 def optimize(argv: Sequence[str]) -> int:
-    """rl-zoo3's Optuna search with the SGFD sampler (see sgfd_zoo.experiment.sample_sgfd_sac_params)."""
+    """rl-zoo3's Optuna search with the SGFD sampler (see sgfd_zoo.registration.sample_sgfd_sac_params)."""
     return train(argv, optimize=True)
 
 
@@ -100,7 +195,7 @@ def enjoy(argv: Sequence[str]) -> int:
     argv = list(argv)
     if not (has_flag(argv, "-f") or has_flag(argv, "--folder")):
         argv += ["-f", "logs"]
-    folder = flag_value(argv, "-f") or flag_value(argv, "--folder")
+    folder = flag_value(argv, "-f") or flag_value(argv, "--folder") or "logs"
     algo, env_id = flag_value(argv, "--algo"), flag_value(argv, "--env")
     chosen = ("--exp-id", "--load-best", "--load-checkpoint", "--load-last-checkpoint")
     if algo is not None and env_id is not None and not any(has_flag(argv, flag) for flag in chosen):

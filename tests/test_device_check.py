@@ -1,14 +1,56 @@
-"""bench/device_check.py's smoke run (CI runs it so that the GPU session's script cannot rot)."""
+"""bench/device_check.py: its smoke run (CI runs it so that the GPU session's script cannot rot), its time
+limits, and its table kept row by row."""
 
 from __future__ import annotations
 
+import importlib.util
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def device_check():
+    spec = importlib.util.spec_from_file_location("device_check", REPO / "bench" / "device_check.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def rows_of(table: Path) -> list[str]:
+    return [line for line in table.read_text().splitlines() if line.startswith("| ") and "---" not in line][1:]
+
+
+def test_the_parts_time_limits_add_up_to_the_checks_eight_minutes():
+    check = device_check()
+    assert check.TOTAL_SECONDS == 8 * 60
+    assert sum(check.BUDGETS.values()) + check.OWN_SECONDS <= check.TOTAL_SECONDS
+    # every part's limit is used by a part (a limit no part reads would not bound anything)
+    source = (REPO / "bench" / "device_check.py").read_text()
+    assert all(kind in source for kind in ('budgets["cuda"]', 'budgets["throughput"]', 'f"overhead {label}"'))
+    assert set(check.BUDGETS) == {"cuda", "throughput", "learning sgfd_sac", "learning ambs"} | {
+        f"overhead {policy}" for policy in ("mlp", "cnn", "agents")
+    }
+
+
+def test_a_check_stopped_from_outside_keeps_the_rows_it_measured(tmp_path):
+    out = tmp_path / "device_check.md"
+    process = subprocess.Popen([sys.executable, "bench/device_check.py", "--smoke", "--out", str(out)], cwd=REPO)
+    try:
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and process.poll() is None and not (out.exists() and rows_of(out)):
+            time.sleep(0.2)
+        assert out.exists() and rows_of(out), "no row within 300 s"
+    finally:
+        process.kill()
+        process.wait(timeout=60)
+    rows = rows_of(out)
+    assert rows[0].startswith("| CUDA tests (`pytest -m cuda`) | ")  # the first part's row, whole
+    assert out.read_text().startswith("device check, ") and "parts stopped at " in out.read_text()
 
 
 @pytest.mark.slow
@@ -19,10 +61,10 @@ def test_the_device_checks_smoke_run_fills_its_table(tmp_path):
         cwd=REPO,
         capture_output=True,
         text=True,
-        timeout=600,
+        timeout=900,
     )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    rows = [line for line in out.read_text().splitlines() if line.startswith("| ") and "---" not in line][1:]
+    rows = rows_of(out)
     checks = [row.split("|")[1].strip() for row in rows]
     assert [check.split(" ")[0] for check in checks] == [
         "CUDA",

@@ -43,8 +43,9 @@ from stable_baselines3.common.save_util import load_from_pkl
 
 import sgfd_envs.dmc
 from sgfd_zoo import sweep, training
+from sgfd_zoo.checkpoints import read_index
 from sgfd_zoo.cli import main as zoo_main
-from sgfd_zoo.runs import FINISHED_MARKER, RunFolder, read_index
+from sgfd_zoo.runs import FINISHED_MARKER, RunFolder
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 NAME = "SGFD-MT-walker-walk-v0"
@@ -380,11 +381,11 @@ BIG_BUFFER = ["-params", *TINY_PARAMS, "buffer_size:200000"]
 @pytest.mark.parametrize(
     ("signum", "times", "writing"),
     [
-        (signal.SIGKILL, 1, ".tmp-checkpoint_replay_buffer_400_steps.pkl"),
-        (signal.SIGINT, 1, ".tmp-checkpoint_replay_buffer_400_steps.pkl"),
-        (signal.SIGINT, 2, ".tmp-checkpoint_replay_buffer_400_steps.pkl"),
-        (signal.SIGKILL, 1, ".tmp-replay_buffer.pkl"),  # the final save (--save-replay-buffer: the buffer first)
-        (signal.SIGINT, 1, ".tmp-replay_buffer.pkl"),
+        (signal.SIGKILL, 1, "checkpoint_replay_buffer_400_steps.pkl"),
+        (signal.SIGINT, 1, "checkpoint_replay_buffer_400_steps.pkl"),
+        (signal.SIGINT, 2, "checkpoint_replay_buffer_400_steps.pkl"),
+        (signal.SIGKILL, 1, "replay_buffer.pkl"),  # the final save (--save-replay-buffer: the buffer first)
+        (signal.SIGINT, 1, "replay_buffer.pkl"),
     ],
     ids=["kill-in-checkpoint", "ctrl-c-in-checkpoint", "ctrl-c-twice", "kill-in-final-save", "ctrl-c-in-final-save"],
 )
@@ -394,7 +395,8 @@ def test_a_signal_during_a_save(tmp_path: Path, signum: int, times: int, writing
     steps = 600 if "checkpoint" in writing else 400
     args = [*train_args(logs, "--save-replay-buffer", steps=steps), *BIG_BUFFER]
     training_run = Training(args, tmp_path / "first")
-    training_run.wait_until(lambda: (run / writing).exists())
+    # the temporary file of that write (its name is the file's, after a prefix unique to the writing process)
+    training_run.wait_until(lambda: any(run.glob(f".tmp-*-{writing}")))
 
     code = training_run.send(signum, times)
 
@@ -516,10 +518,18 @@ def test_a_typo_inside_a_kwargs_hyperparameter_is_one_line_naming_the_key_and_th
 
 def test_a_configuration_that_does_not_build_is_one_line_and_leaves_no_run_folder(tmp_path: Path) -> None:
     argv = ["train", "--algo", "sac", "--env", ENV_ID, "--quick", "-f", str(tmp_path / "logs")]
-    code, _out, err = zoo([*argv, "-params", "train_freq:(1, 'stepz')"])  # SB3 refuses it when it builds
+    # A bad value is refused where it enters, before the run folder is claimed.
+    code, _out, err = zoo([*argv, "-params", "train_freq:(1, 'stepz')"])
+    assert code == 2 and len(err) == 1, err
+    assert err[0] == (
+        "sgfd-zoo train: error: train_freq must be an int >= 1 or (int >= 1, 'step' or 'episode'), got (1, 'stepz')"
+    )
+    assert not (tmp_path / "logs").exists()
+    # What only building finds (an activation that is not a module) fails there: the claimed folder goes again.
+    code, _out, err = zoo([*argv, "-params", "policy_kwargs:dict(activation_fn='relu')"])
     assert code == 2 and len(err) == 1, err
     assert err[0].startswith("sgfd-zoo train: error: sac on SGFD/MT-walker-walk-v0 cannot be built from this ")
-    assert "'stepz'" in err[0] and not (tmp_path / "logs").exists()
+    assert not (tmp_path / "logs").exists()
 
 
 def test_the_sweep_refuses_a_typo_once_at_planning_before_any_run(tmp_path: Path) -> None:
@@ -527,7 +537,7 @@ def test_the_sweep_refuses_a_typo_once_at_planning_before_any_run(tmp_path: Path
     code, _out, err = zoo([*argv, "-params", "replay_buffer_kwargs:dict(frame_stak=3)"])
     assert code == 2 and len(err) == 1 and "'frame_stak' (did you mean 'frame_stack'?)" in err[0]
     # What only building the model finds is found at planning too: the pre-check builds each configuration.
-    code, _out, err = zoo([*argv, "-params", "train_freq:(1, 'stepz')"])
+    code, _out, err = zoo([*argv, "-params", "policy_kwargs:dict(activation_fn='relu')"])
     assert code == 2 and len(err) == 1, err
     assert err[0].startswith("sgfd-zoo sweep: error: sac on SGFD/MT-walker-walk-v0 cannot be built from this ")
     assert not ray.is_initialized() and not list(tmp_path.iterdir())

@@ -65,7 +65,8 @@ def test_no_import_cycle_between_modules():
 
 
 def test_reporting_imports_neither_torch_nor_rl_zoo3():
-    code = "import sys, sgfd_zoo.cli, sgfd_zoo.plot, sgfd_zoo.runs, sgfd_zoo.statistics, sgfd_zoo.arguments; "
+    code = "import sys, sgfd_zoo.cli, sgfd_zoo.plot, sgfd_zoo.runs, sgfd_zoo.records, sgfd_zoo.statistics, "
+    code += "sgfd_zoo.arguments, sgfd_zoo.files, sgfd_zoo.checkpoints, sgfd_zoo.locks, sgfd_zoo.sweep_plan; "
     code += "print(sorted(m for m in ('torch', 'rl_zoo3', 'optuna', 'ray', 'stable_baselines3') if m in sys.modules))"
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
     assert loaded.stdout.strip() == "[]"

@@ -166,7 +166,7 @@ def write_record(study: Path, algo: str, seed: int, splits: tuple[str, ...]) -> 
 
 def test_a_record_without_its_whole_final_evaluation_is_trained_again_and_a_whole_one_is_not(tmp_path):
     from sgfd_zoo import sweep
-    from sgfd_zoo.runs import RunRecord
+    from sgfd_zoo.records import RunRecord
     from sgfd_zoo.study import read_spec, study_records
 
     spec = read_spec(write_spec(tmp_path / "study", seeds=[0, 1, 2]))
@@ -200,7 +200,8 @@ def write_log_run(logs: Path, algo: str, run_id: int, seed: int) -> Path:
 
 def test_a_fresh_log_folders_run_never_overwrites_an_earlier_sessions_record_of_another_seed(tmp_path):
     from sgfd_zoo.arguments import ZooError
-    from sgfd_zoo.runs import RunFolder, RunRecord, find_records
+    from sgfd_zoo.records import RunRecord, find_records
+    from sgfd_zoo.runs import RunFolder
     from sgfd_zoo.study import record_of
 
     study, runs = tmp_path / "study", tmp_path / "study" / "runs"
@@ -229,7 +230,8 @@ def test_a_fresh_log_folders_run_never_overwrites_an_earlier_sessions_record_of_
 
 
 def test_an_unreadable_final_evaluation_is_named(tmp_path):
-    from sgfd_zoo.runs import RunRecord, UnreadableFile
+    from sgfd_zoo.files import UnreadableFile
+    from sgfd_zoo.records import RunRecord
 
     record = RunRecord(write_record(tmp_path, "sac", 0, ("train",)))
     record.final_evaluation.write_text("algo,env,split,seed\nsac,x,train,zero\n")

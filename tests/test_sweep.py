@@ -7,11 +7,13 @@ import csv
 import io
 import os
 import re
+import shlex
 import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import zipfile
@@ -22,8 +24,10 @@ import pytest
 import ray
 import yaml
 
-from sgfd_zoo import cli, sweep
-from sgfd_zoo.runs import Checkpoint, RunFolder, atomic_write, find_runs, mark_finished, read_index, write_index
+from sgfd_zoo import cli, ray_runs, sweep
+from sgfd_zoo.checkpoints import Checkpoint, read_index, write_index
+from sgfd_zoo.files import atomic_write
+from sgfd_zoo.runs import RunFolder, find_runs, mark_finished
 
 pytestmark = pytest.mark.ray
 
@@ -203,14 +207,22 @@ def test_sweep_trains_each_seed_into_its_own_folder_reports_failures_and_evaluat
     assert "(new run)" in logs[0] and "(resuming from its checkpoint)" in logs[1]
     assert "--resume: no usable checkpoint in " in logs[1] and "=== so starting it again from step 0" in logs[1]
     assert not (runs[1].path / "progress_from_300.csv").exists()
-    # The failures: in the summary with their reason and log, and no run folder left behind.
-    summary = out.rsplit("\nsweep: ", 1)[1]
-    assert summary.startswith("2 trained, 0 already finished, 2 failed")
+    # The failures: in the summary with their reason and log, and no run folder left behind; then the command
+    # that continues the sweep.
+    summary = out[out.rindex("\nsweep: 2 trained") + 1 :]
+    assert summary.startswith("sweep: 2 trained, 0 already finished, 2 failed\n")
+    continues = summary.splitlines()[-1]
+    assert continues.startswith("sweep: not every run finished; once the failures are fixed, this continues the sweep")
+    assert continues.endswith(
+        f"sgfd-zoo sweep --algos sgfd_sac sac --envs {ENV} --seeds 0 1 -f {folder} --num-cpus 2 "
+        f"--n-episodes 1 {' '.join(TINY)}"
+    )
     for seed in (0, 1):
         log = folder / "sac" / f"{NAME}_{seed + 1}.log"
         assert f"FAILED sac on {ENV} seed {seed}: " in summary and "checkpoint_300_steps" in summary
-        assert f"(log: {log})" in summary
-        assert "resuming from its checkpoint" in log.read_text() and "Traceback" in log.read_text()
+        assert f"(its checkpoint at 300 steps is kept; log: {log})" in summary
+        assert "resuming from its checkpoint" in log.read_text() and "Traceback" not in log.read_text()
+        assert "sgfd-zoo train: --resume: " in log.read_text()  # the zoo's one line, in the run's log too
         assert "passes its checks but does not load" in summary
         failed = RunFolder(folder / "sac" / f"{NAME}_{seed + 1}")
         assert not failed.finished and failed.checkpoint is not None  # kept as it was, for a fixed code to resume
@@ -223,7 +235,8 @@ def test_sweep_trains_each_seed_into_its_own_folder_reports_failures_and_evaluat
     assert {(row["algo"], row["seed"], row["split"]) for row in rows} == {
         ("sgfd_sac", seed, split) for seed in ("0", "1") for split in ("train", "test")
     }
-    assert "# train (mean ± std over 2 seeds)" in out
+    # (SGFD/walker-walk-v0 without background_dir plays sgfd_envs' procedural backgrounds: the table says so)
+    assert "# train (stand-in) (mean ± std over 2 seeds)" in out
 
 
 @pytest.mark.slow
@@ -236,7 +249,7 @@ def test_the_sweep_goes_on_when_its_progress_board_dies(tmp_path: Path) -> None:
             try:
                 # (a Ray call before the sweep's ray.init would start an instance of its own)
                 if ray.is_initialized():
-                    ray.kill(ray.get_actor(sweep.BOARD_NAME))
+                    ray.kill(ray.get_actor(ray_runs.BOARD_NAME))
                     killed.set()
                     return
             except ValueError:  # no board yet
@@ -348,3 +361,143 @@ def test_ctrl_c_stops_each_running_run_at_a_checkpoint_that_the_same_command_res
         (1, tmp_path / "logs" / "sac" / f"{NAME}_2", None),
     ]
     assert done == [] and problems == []
+
+
+# -- a `ray start` cluster: token authentication, and a cluster that goes away ----------------------------
+
+TINY_PARAMS = [
+    "-params",
+    "learning_starts:100",
+    "gradient_steps:1",
+    "batch_size:32",
+    "policy_kwargs:dict(net_arch=[32])",
+]
+
+
+def _processes_under(marker: str) -> list[int]:
+    """The pids of the processes whose command line names ``marker`` (a cluster's own temp dir), and their
+    descendants: what `ray start` started for one test, and nothing else on the machine."""
+    parents: dict[int, int] = {}
+    found = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            parents[int(entry.name)] = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            continue
+        if marker in command:
+            found.add(int(entry.name))
+    grown = True
+    while grown:
+        children = {pid for pid, parent in parents.items() if parent in found} - found
+        found |= children
+        grown = bool(children)
+    return sorted(found)
+
+
+def _kill(pids: list[int]) -> None:
+    for pid in pids:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+
+
+@contextlib.contextmanager
+def ray_start_cluster(home: Path, token: bool) -> Iterator[tuple[str, str]]:
+    """``ray start --head`` on this machine, with HOME ``home`` (where Ray keeps its token) and a temp dir of its
+    own; yields its address and that temp dir. Stopped by killing its processes by pid (``ray stop`` would stop
+    every Ray instance on the machine)."""
+    home.mkdir(parents=True, exist_ok=True)
+    env = {key: value for key, value in os.environ.items() if not key.startswith("RAY_AUTH")}
+    env["HOME"] = str(home)
+    ray_command = [str(Path(sys.executable).with_name("ray"))]
+    if token:  # what a first `ray.init()` on this machine leaves: then `ray start` turns authentication on
+        subprocess.run([*ray_command, "get-auth-token", "--generate"], env=env, check=True, capture_output=True)
+    temp = tempfile.mkdtemp(prefix="rc", dir="/tmp")  # short: Ray's socket paths have a length limit
+    port = _free_port()
+    started = [*ray_command, "start", "--head", f"--port={port}", "--num-cpus=1", f"--temp-dir={temp}"]
+    started += ["--include-dashboard=false", "--disable-usage-stats"]
+    try:
+        subprocess.run(started, env=env, check=True, capture_output=True, timeout=300)
+        yield f"127.0.0.1:{port}", temp
+    finally:
+        _kill(_processes_under(temp))
+        shutil.rmtree(temp, ignore_errors=True)
+
+
+def _sweep_env(home: Path) -> dict[str, str]:
+    env = {key: value for key, value in os.environ.items() if not key.startswith("RAY_AUTH")}
+    return {**env, "HOME": str(home)}
+
+
+@pytest.mark.slow
+def test_sweep_attaches_to_a_ray_start_cluster_with_token_authentication(tmp_path: Path) -> None:
+    head, elsewhere, logs = tmp_path / "head", tmp_path / "elsewhere", tmp_path / "logs"
+    elsewhere.mkdir()
+    with ray_start_cluster(head, token=True) as (address, _temp):
+        argv = [sys.executable, "-m", "sgfd_zoo.cli", "sweep", "--algos", "sac", "--envs", ENV, "--seeds", "0"]
+        argv += ["-f", str(logs), "--address", address, "--no-evaluate", *TINY]
+        # A machine without the cluster's token: one line naming authentication and what to do.
+        refused = subprocess.run(argv, env=_sweep_env(elsewhere), capture_output=True, text=True, timeout=300)
+        assert refused.returncode == 2, refused.stdout + refused.stderr
+        last = refused.stderr.strip().splitlines()[-1]
+        assert last.startswith(f"sgfd-zoo sweep: error: --address {address}: the Ray cluster requires token auth")
+        assert "this machine has no token" in last and "~/.ray/auth_token" in last and "RAY_AUTH_TOKEN" in last
+        assert "InvalidAuthToken" not in refused.stderr and not list(logs.glob("*/*/"))
+        # The cluster's own machine has the token: attached, the run trains.
+        done = subprocess.run(argv, env=_sweep_env(head), capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert f"sweep: Ray cluster at {address}: 1 CPUs" in done.stdout
+    (run,) = find_runs(logs)
+    # The run's command.txt is the train command the sweep ran (not Ray's worker command line).
+    command = shlex.split((run.config_dir / "command.txt").read_text())
+    assert command[:9] == ["sgfd-zoo", "train", "--algo", "sac", "--env", ENV, "--seed", "0", "-f"]
+    assert command[command.index("--run-id") + 1] == "1" and "default_worker" not in " ".join(command)
+
+
+@pytest.mark.slow
+def test_a_sweep_whose_cluster_goes_away_exits_75_naming_it_with_where_each_run_stopped(tmp_path: Path) -> None:
+    home, logs = tmp_path / "home", tmp_path / "logs"
+    out_file = tmp_path / "out.txt"
+    # Long runs with a checkpoint every 200 steps, one at a time (the cluster has 1 CPU): seed 1 waits.
+    flags = ["--quick", "-n", "100000", "--eval-freq", "-1", "--save-freq", "200", "--verbose", "0", *TINY_PARAMS]
+    with ray_start_cluster(home, token=False) as (address, temp):
+        argv = ["sweep", "--algos", "sac", "--envs", ENV, "--seeds", "0", "1", "-f", str(logs), "--address", address]
+        argv += ["--no-evaluate", "--progress-interval", "1", *flags]
+        with out_file.open("w") as out:
+            process = subprocess.Popen(
+                [sys.executable, "-m", "sgfd_zoo.cli", *argv],
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                env=_sweep_env(home),
+            )
+        try:
+            run = logs / "sac" / f"{NAME}_1"
+            deadline = time.monotonic() + 400
+            while time.monotonic() < deadline and process.poll() is None:
+                with contextlib.suppress(Exception):
+                    if read_index(run):
+                        break
+                time.sleep(0.5)
+            assert read_index(run), out_file.read_text()
+            _kill(_processes_under(temp))  # the cluster goes away: head, raylet, workers
+            lost_at = time.monotonic()
+            code = process.wait(timeout=120)
+        finally:
+            if process.poll() is None:
+                process.kill()
+    text = out_file.read_text()
+    assert code == 75, text
+    assert time.monotonic() - lost_at < 60  # before Ray's own minute
+    stopped_at = RunFolder(run).checkpoint.num_timesteps
+    assert f"stopped at its checkpoint at {stopped_at} steps: sac on {ENV} seed 0 ({run})" in text or (
+        f"FAILED sac on {ENV} seed 0: " in text and f"its checkpoint at {stopped_at} steps is kept" in text
+    ), text
+    assert f"not started: sac on {ENV} seed 1 ({logs / 'sac' / f'{NAME}_2'})" in text
+    last = text.strip().splitlines()[-1]
+    assert last.startswith(f"sweep: the Ray cluster at {address} went away: its head at ")
+    assert (
+        "every checkpoint is kept: on a running cluster, this continues the sweep: sgfd-zoo sweep --algos sac" in last
+    )
+    assert not RunFolder(run).finished and stopped_at >= 200

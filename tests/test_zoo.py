@@ -14,13 +14,14 @@ import torch as th
 import yaml
 
 import sgfd_envs
-from sgfd_zoo import provenance
+from sgfd_zoo import provenance, training
 from sgfd_zoo.algos import SGFD_ALGOS
 from sgfd_zoo.arguments import ZooError
+from sgfd_zoo.checkpoints import read_index
 from sgfd_zoo.cli import main as zoo_main
 from sgfd_zoo.evaluate import read_results, render_tables
 from sgfd_zoo.experiment import SGFDExperimentManager, hyperparams_file, register_algorithms
-from sgfd_zoo.runs import RunFolder, read_index
+from sgfd_zoo.runs import RunFolder
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 RUN_NAME = "SGFD-MT-walker-walk-v0"
@@ -105,8 +106,8 @@ def test_every_yaml_entry_builds_its_model(algo, quick, tmp_path):
         expected = SGFD_ALGOS[algo].algo_class
         assert type(model) is expected
         assert model.n_envs == sgfd_envs.n_domains(env_id, "train")
-        for key, value in SGFD_ALGOS[algo].overrides.items():
-            assert getattr(model, key) == value and saved[key] == value
+        for key, value in SGFD_ALGOS[algo].overrides.items():  # SGFD's settings (model.sgfd)
+            assert getattr(model.sgfd, key) == value and saved[key] == value
         if not quick:
             # The paper's setting: pixels, 3 stacked frames, frame-deduplicating buffer of 500k transitions.
             assert model.observation_space.shape == (9, 84, 84)
@@ -193,12 +194,89 @@ def test_table_renders_in_the_papers_layout():
             "reads flat states, but the env gives pixel observations: use the paper-scale configuration",
         ),
         (["train", "--algo", "dbc", "--env", ENV_ID, "--quick", "-params", "augmentation_views:2"], "shifts images"),
+        # values the zoo checks itself, before anything is built
+        (["train", "--env", ENV_ID, *TINY, "-n", "0"], "-n 0: expected a number of steps >= 1"),
+        (["train", "--env", ENV_ID, *TINY, "--seed", "-5"], "--seed -5: expected 0..4294967295, or -1 for a random"),
+        (
+            ["train", "--env", ENV_ID, *TINY, "-params", "learning_rate:'fast'"],
+            "learning_rate must be a number, or a schedule 'lin_<start>' (linear from <start> to 0), got 'fast'",
+        ),
+        # the algorithms' own values, checked by sb3_sgfd (SAC's, SGFD's, the objectives') before anything is built
+        (["train", "--env", ENV_ID, *TINY, "-params", "batch_size:0"], "batch_size must be a positive integer, got 0"),
+        (["train", "--env", ENV_ID, *TINY, "-params", "buffer_size:-5"], "buffer_size must be a positive integer"),
+        (["train", "--env", ENV_ID, *TINY, "-params", "tau:2"], "tau must be a number in "),
+        (
+            ["train", "--env", ENV_ID, *TINY, "-params", "reweight_ess_penalty:-1"],
+            "reweight_ess_penalty must be a finite number >= 0, got -1",
+        ),
+        (["train", "--env", ENV_ID, *TINY, "-params", "learning_rate:-0.1"], "learning_rate must be a number > 0"),
+        (["train", "--env", ENV_ID, *TINY, "-params", "n_envs:0"], "n_envs=0: expected a whole number of sub-envs"),
+        (["train", "--env", ENV_ID, "--quick", "-params", "n_timesteps:0"], "n_timesteps=0: expected a whole number"),
+        (["train", "--env", ENV_ID, *TINY, "--eval-episodes", "0"], "--eval-episodes 0: expected at least 1"),
+        # env settings: a typo named with what the id takes; what the zoo sets itself explained
+        (
+            ["train", "--env", ENV_ID, *TINY, "--env-kwargs", "obs_typ:'state'"],
+            "does not take 'obs_typ' (did you mean 'obs_type'?); it takes ",
+        ),
+        (
+            ["train", "--env", ENV_ID, *TINY, "--env-kwargs", "split:'extrapolation'"],
+            "split:'extrapolation': the zoo sets split itself: it trains on 'train' and evaluates on every split",
+        ),
+        (["train", "--env", ENV_ID, *TINY, "--env-kwargs", "domain:2"], "the zoo gives each sub-env its own domain"),
+        (
+            ["train", "--env", ENV_ID, *TINY, "--eval-env-kwargs", "split:'train'"],
+            "evaluation env_kwargs split:'train': the zoo sets split itself",
+        ),
+        # a log folder that cannot hold run folders (sysfs refuses every mkdir, to root too)
+        (["train", "--env", ENV_ID, *TINY, "-f", "/sys/sgfd-zoo-logs"], "-f /sys/sgfd-zoo-logs: cannot"),
+        (["train", "--env", ENV_ID, *TINY, "-f", __file__], f"-f {__file__}: is a file, not a folder"),
     ],
 )
-def test_bad_input_gives_one_clear_line_and_a_nonzero_exit(args, message, capsys):
+def test_bad_input_gives_one_clear_line_and_a_nonzero_exit(args, message, capsys, tmp_path):
+    logs = tmp_path / "logs"
+    if args[0] in ("train", "optimize") and "-f" not in args:
+        args = [*args, "-f", str(logs)]  # where a run would go, if the check let one start
     assert zoo_main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("sgfd-zoo") and ": error: " in err[0] and message in err[0]
+    assert len(err) == 1 and err[0].startswith("sgfd-zoo") and ": error: " in err[0] and message in err[0], err
+    assert not logs.exists()
+
+
+def test_train_help_is_one_usage_block_of_the_zoos_algorithms_and_loads_no_training_stack():
+    code = "import sys; from sgfd_zoo.cli import main; main(['train', '--help']); "
+    code += "print(sorted(m for m in ('torch', 'rl_zoo3', 'sgfd_envs', 'stable_baselines3') if m in sys.modules))"
+    started = time.perf_counter()
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    seconds = time.perf_counter() - started
+    lines = done.stdout.splitlines()
+    assert lines[-1] == "[]" and done.stdout.count("usage: ") == 1, done.stdout
+    assert seconds < 10, f"{seconds:.1f} s"  # no heavy import: a fraction of a second when the machine is idle
+    assert "ppo" not in done.stdout and "--algo ALGO" in done.stdout
+    assert all(algo in done.stdout for algo in SGFD_ALGOS)
+
+
+def test_env_kwargs_on_the_command_line_are_merged_into_the_configurations(tmp_path):
+    # The quick configuration of MT ids observes states with the morphology parameter; --env-kwargs changes one
+    # setting and keeps the others (rl-zoo3 alone would replace them all: pixels, and a policy that cannot read them).
+    manager = SGFDExperimentManager(
+        Namespace(), "sac", ENV_ID, str(tmp_path), quick=True, env_kwargs={"observe_parameter": False}
+    )
+    hyperparams, saved = manager.read_hyperparameters()
+    manager._preprocess_hyperparams(hyperparams)
+    assert manager.env_kwargs == {"obs_type": "state", "observe_parameter": False}
+    assert dict(saved)["env_kwargs"] == manager.env_kwargs == manager.eval_env_kwargs
+    argv = ["--algo", "sac", "--env", ENV_ID, "--quick", "-f", str(tmp_path), "--env-kwargs", "image_size:64"]
+    assert training.train(argv, check_only=True) == 0 and not list(tmp_path.iterdir())
+
+
+def test_an_interval_longer_than_the_run_warns(tmp_path, capsys):
+    argv = ["--algo", "sac", "--env", ENV_ID, "--quick", "-n", "500", "-f", str(tmp_path)]
+    assert training.train([*argv, "--eval-freq", "1000", "--save-freq", "600"], check_only=True) == 0
+    err = capsys.readouterr().err
+    assert "warning: --eval-freq 1000 is more than the run's 500 steps: it is not evaluated during training" in err
+    assert "warning: --save-freq 600 is more than the run's 500 steps: it has no periodic checkpoint" in err
+    assert training.train(argv, check_only=True) == 0  # rl-zoo3's default --eval-freq (25000): not the user's doing
+    assert "warning" not in capsys.readouterr().err
 
 
 def test_unknown_algo_is_refused_by_the_parser(capsys):

@@ -1,0 +1,119 @@
+"""A run's checkpoints on disk: their index (``checkpoint.json``), their files, and finding them without it.
+
+    checkpoint.json                         the index of the two newest checkpoints: each file's size, sha256
+    checkpoint_<n>_steps.zip                a checkpoint's model (written last: the checkpoint is complete)
+    checkpoint_<part>_<n>_steps.pkl         its other parts: replay_buffer, vecnormalize, training_state
+
+Files only: what a checkpoint holds and when it is taken is :mod:`sgfd_zoo.checkpoint_callback`'s.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from sgfd_zoo.files import TMP_PREFIX, StoredFile, UnreadableFile, read_json, sha256_of, write_json
+
+CHECKPOINT_INDEX = "checkpoint.json"
+INDEX_FORMAT = 2  # 1: the single-checkpoint index before sizes and checksums ({"num_timesteps", "model", ...})
+KEPT_CHECKPOINTS = 2  # the newest and the one before it, to fall back on
+_CHECKPOINT_FILE = re.compile(r"checkpoint_(?:(?P<part>[a-z_]+?)_)?(?P<steps>\d+)_steps(?P<suffix>\.[a-z]+)")
+
+
+def checkpoint_file_name(part: str, steps: int, suffix: str) -> str:
+    """``checkpoint_<steps>_steps.zip`` for the model, ``checkpoint_<part>_<steps>_steps<suffix>`` else."""
+    return f"checkpoint_{steps}_steps{suffix}" if part == "model" else f"checkpoint_{part}_{steps}_steps{suffix}"
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """A checkpoint: the step it was taken at and its files, by part (``model``, ``replay_buffer``, ...).
+
+    :param num_timesteps: the model's step count when it was saved
+    :param files: part -> file, in the order they were written (the model last)
+    """
+
+    num_timesteps: int
+    files: dict[str, StoredFile]
+
+    def problem(self, folder: Path, full: bool = True) -> str | None:
+        """The first reason a file of the checkpoint is not as written, or None (see :meth:`StoredFile.problem`)."""
+        if "model" not in self.files:
+            return f"the checkpoint at {self.num_timesteps} steps has no model file"
+        return next((p for f in self.files.values() if (p := f.problem(folder, full)) is not None), None)
+
+    @property
+    def size(self) -> int | None:
+        """Bytes of all its files, when known."""
+        sizes = [stored.size for stored in self.files.values()]
+        return None if None in sizes else sum(sizes)  # type: ignore[arg-type]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"num_timesteps": self.num_timesteps, "files": {p: f.to_json() for p, f in self.files.items()}}
+
+    @classmethod
+    def from_json(cls, entry: dict[str, Any]) -> Checkpoint:
+        files = {part: StoredFile(**stored) for part, stored in entry["files"].items()}
+        return cls(int(entry["num_timesteps"]), files)
+
+
+def read_index(folder: Path) -> list[Checkpoint]:
+    """The checkpoints ``checkpoint.json`` lists, newest first ([] without one); an :class:`UnreadableFile`
+    when it does not parse. Reads format 1 (one checkpoint, file names only) too."""
+    path = Path(folder) / CHECKPOINT_INDEX
+    index = read_json(path)
+    if index is None:
+        return []
+    try:
+        if "checkpoints" in index:
+            return [Checkpoint.from_json(entry) for entry in index["checkpoints"]]
+        names = {part: StoredFile(index[part]) for part in ("replay_buffer", "vecnormalize") if part in index}
+        return [Checkpoint(int(index["num_timesteps"]), {**names, "model": StoredFile(index["model"])})]
+    except (KeyError, TypeError, ValueError, AttributeError) as error:
+        raise UnreadableFile(f"{path} is not a checkpoint index ({type(error).__name__}: {error})") from None
+
+
+def write_index(folder: Path, checkpoints: list[Checkpoint]) -> None:
+    """Replace ``checkpoint.json`` with these checkpoints, newest first."""
+    index = {"format": INDEX_FORMAT, "checkpoints": [checkpoint.to_json() for checkpoint in checkpoints]}
+    write_json(Path(folder) / CHECKPOINT_INDEX, index)
+
+
+def scan_checkpoints(folder: Path) -> list[Checkpoint]:
+    """The checkpoints whose files are in ``folder``, newest first, found by their names (for a folder whose
+    index is unreadable). Only those with a model file: it is written last, so the others are incomplete."""
+    groups: dict[int, dict[str, StoredFile]] = {}
+    for path in Path(folder).glob("checkpoint_*_steps.*"):
+        match = _CHECKPOINT_FILE.fullmatch(path.name)
+        if match is not None:
+            groups.setdefault(int(match["steps"]), {})[match["part"] or "model"] = StoredFile(path.name)
+    return [Checkpoint(steps, files) for steps, files in sorted(groups.items(), reverse=True) if "model" in files]
+
+
+def describe_checkpoint(folder: Path, checkpoint: Checkpoint) -> Checkpoint:
+    """``checkpoint`` with the size and sha256 of each file that has none yet (found without an index, or in an
+    index of format 1), read from ``folder``."""
+    files = {}
+    for part, stored in checkpoint.files.items():
+        if stored.size is None or stored.sha256 is None:
+            path = Path(folder) / stored.name
+            stored = StoredFile(stored.name, path.stat().st_size, sha256_of(path))
+        files[part] = stored
+    return Checkpoint(checkpoint.num_timesteps, files)
+
+
+def remove_checkpoint_files(folder: Path, keep: Iterable[Checkpoint]) -> list[str]:
+    """Delete the checkpoint files (and the temporary files of interrupted writes) of ``folder`` that no
+    checkpoint of ``keep`` names; returns their names. Only its writer calls this (it holds the run's lock), so
+    every temporary file there is one a stopped process left."""
+    kept = {stored.name for checkpoint in keep for stored in checkpoint.files.values()}
+    removed = []
+    leftovers = [*Path(folder).glob(f"{TMP_PREFIX}*"), *Path(folder).glob(f"*/{TMP_PREFIX}*")]
+    for path in [*Path(folder).glob("checkpoint_*_steps.*"), *leftovers]:
+        if path.is_file() and path.name not in kept and path.name != CHECKPOINT_INDEX:
+            path.unlink(missing_ok=True)
+            removed.append(path.name)
+    return sorted(removed)
