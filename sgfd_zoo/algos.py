@@ -82,3 +82,39 @@ def column_name(algo: str) -> str:
 def algo_sort_key(algo: str) -> tuple[int, str]:
     """Sort key putting algorithm keys in the paper's column order."""
     return (ALGO_ORDER.index(algo) if algo in ALGO_ORDER else len(ALGO_ORDER), algo)
+
+
+def is_sgfd(algo: str) -> bool:
+    """Whether ``algo`` is one of the SGFD agents (SGFD_SAC with a domain classifier and ``classifier_start``)."""
+    return algo in SGFD_ALGOS and SGFD_ALGOS[algo].class_path == SGFD
+
+
+def classifier_start_warning(algo: str, hyperparams: dict[str, Any], n_timesteps: int) -> str | None:
+    """
+    One line when ``algo`` is an SGFD agent whose domain classifier would not train within the run (its
+    ``classifier_start`` is at or past the run's last step), saying what the run then is; None otherwise.
+
+    :param algo: algorithm key
+    :param hyperparams: the run's hyperparameters (``classifier_start`` and ``reading`` where set)
+    :param n_timesteps: env steps the run trains for
+    """
+    if not is_sgfd(algo):
+        return None
+    start = hyperparams.get("classifier_start")
+    if start is None:
+        from sb3_sgfd.sgfd.settings import SGFDSettings  # here: reading this table imports no agent
+
+        start = SGFDSettings().classifier_start
+    if start < n_timesteps:
+        return None
+    # The official reading weights from the first update with whatever the classifier scores; the paper's
+    # reweights only once its classifier has trained.
+    what = (
+        "its weights come from a classifier that never trains"
+        if hyperparams.get("reading") == "official"
+        else "it trains as plain SAC (no sample weights)"
+    )
+    return (
+        f"{algo}: the run is {n_timesteps} steps and SGFD's domain classifier starts at step {start} "
+        f"(classifier_start), so {what}; start it within the run with --classifier-start STEPS"
+    )

@@ -50,6 +50,8 @@ class MultiSplitEvalCallback(BaseCallback):
     :param log_path: Folder of the ``evaluations_<split>.npz`` files; existing files are continued from the
         step training starts at
     :param deterministic: Use the deterministic policy
+    :param on_split: Called with each split's name before it is evaluated and with None after the last (a
+        progress report: an evaluation can take minutes)
     """
 
     def __init__(
@@ -60,6 +62,7 @@ class MultiSplitEvalCallback(BaseCallback):
         log_path: str | Path | None = None,
         deterministic: bool = True,
         verbose: int = 1,
+        on_split: Callable[[str | None], None] | None = None,
     ):
         super().__init__(verbose)
         if eval_freq < 1:
@@ -69,6 +72,7 @@ class MultiSplitEvalCallback(BaseCallback):
         self.n_eval_episodes = n_eval_episodes
         self.log_path = Path(log_path) if log_path is not None else None
         self.deterministic = deterministic
+        self.on_split = on_split
         self.history: dict[str, dict[str, list]] = {split: _load_history(self._file(split)) for split in eval_envs}
 
     def _file(self, split: str) -> Path | None:
@@ -91,6 +95,8 @@ class MultiSplitEvalCallback(BaseCallback):
         """Evaluate every split now; returns split -> mean episode reward."""
         means = {}
         for split, env in self.eval_envs.items():
+            if self.on_split is not None:
+                self.on_split(split)
             rewards, lengths = evaluate_policy(
                 self.model,
                 env,
@@ -114,6 +120,8 @@ class MultiSplitEvalCallback(BaseCallback):
         # The step with the row, so that a CSV row of evaluations can be placed on the training's time axis.
         self.logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
         self.logger.dump(self.num_timesteps)
+        if self.on_split is not None:
+            self.on_split(None)
         return means
 
     def latest_returns(self) -> dict[str, float]:
@@ -399,8 +407,11 @@ def _size(checkpoints: list[Checkpoint]) -> int | None:
 
 class ProgressCallback(BaseCallback):
     """
-    Report the run's progress to ``reporter`` at most every ``interval`` seconds and at the end: steps done,
-    the total, steps per second, the latest evaluation return of each split, and whether it ended.
+    Report the run's progress to ``reporter`` at most every ``interval`` seconds, at once when an evaluation
+    starts a split or ends (:meth:`evaluating`), and at the end: steps done, the total, the steps per second of
+    learning, the step learning starts at (the steps before it are random actions without updates, many times
+    faster, so they do not count in the rate), the split under evaluation and since when, the latest evaluation
+    return of each split, and whether it ended.
 
     :param reporter: called with a dict of figures; must return quickly (a Ray actor's ``.remote``)
     :param total_timesteps: steps the run trains for in all
@@ -421,13 +432,20 @@ class ProgressCallback(BaseCallback):
         self.latest_returns = latest_returns
         self.interval = interval
         self._last_report = 0.0
-        self._start: tuple[float, int] | None = None
+        self._learning_since: tuple[float, int] | None = None  # (monotonic time, steps) when the rate starts
+        self._evaluating: tuple[str, float] | None = None  # (split, wall-clock time it started)
+
+    @property
+    def learning_starts(self) -> int:
+        return int(getattr(self.model, "learning_starts", 0))
 
     def _on_training_start(self) -> None:
-        self._start = (time.monotonic(), self.num_timesteps)
+        self._learning_since = None
         self._report(done=False)
 
     def _on_step(self) -> bool:
+        if self._learning_since is None and self.num_timesteps >= self.learning_starts:
+            self._learning_since = (time.monotonic(), self.num_timesteps)
         if time.monotonic() - self._last_report >= self.interval:
             self._report(done=False)
         return True
@@ -435,15 +453,32 @@ class ProgressCallback(BaseCallback):
     def _on_training_end(self) -> None:
         self._report(done=True)
 
+    def evaluating(self, split: str | None) -> None:
+        """Report at once that the run evaluates ``split`` now (None: its evaluation ended)."""
+        self._evaluating = None if split is None else (split, time.time())
+        # The evaluation runs inside another callback's step, before this one's has counted the step.
+        self.num_timesteps = self.model.num_timesteps
+        self._report(done=False)
+
     def _report(self, done: bool) -> None:
         self._last_report = now = time.monotonic()
-        started, start_steps = self._start or (now, self.num_timesteps)
-        elapsed = now - started
-        rate = (self.num_timesteps - start_steps) / elapsed if elapsed > 0 else 0.0
+        rate = 0.0
+        if self._learning_since is not None:
+            started, start_steps = self._learning_since
+            elapsed = now - started
+            rate = (self.num_timesteps - start_steps) / elapsed if elapsed > 0 else 0.0
         returns = self.latest_returns() if self.latest_returns is not None else {}
-        report = {"steps": self.num_timesteps, "total": self.total_timesteps, "steps_per_second": rate, "done": done}
+        report: dict[str, Any] = {
+            "steps": self.num_timesteps,
+            "total": self.total_timesteps,
+            "steps_per_second": rate,
+            "learning_starts": self.learning_starts,
+            "done": done,
+        }
         if returns:
             report["returns"] = returns
+        if self._evaluating is not None and not done:
+            report["evaluating"], report["evaluating_since"] = self._evaluating
         try:
             self.reporter(report)
         except Exception as error:  # the sweep's board is gone: its live view loses this run, the run goes on

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import time
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -19,7 +20,7 @@ from pytablewriter import MarkdownTableWriter
 import sgfd_envs
 from sgfd_envs.registry import BENCHMARK_KINDS, benchmark_of
 from sgfd_zoo.algos import algo_sort_key, column_name
-from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id
+from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id, train_command
 from sgfd_zoo.runs import RunFolder, find_runs
 from sgfd_zoo.statistics import MAX_RETURN, aggregate, read_csv, score_rows, split_sort_key, write_csv, write_statistics
 
@@ -206,6 +207,62 @@ def read_results(path: Path) -> list[dict[str, Any]]:
     return read_csv(path)
 
 
+# -- what the tables leave out and what they replace ---------------------------------------------------
+
+
+def continue_command(run: RunFolder) -> str:
+    """The ``sgfd-zoo train`` command that continues ``run`` from its checkpoint (or starts it again when it has
+    none), from the flags the run recorded; for a run that recorded none, what to add to the command that
+    trained it."""
+    resume = run.checkpoint is not None
+    argv = run.train_argv()
+    if argv is None:
+        return f"the command that trained it, with --run-id {run.run_id}{' --resume' if resume else ''}"
+    return train_command(argv, run.run_id, resume)
+
+
+def unfinished_report(runs: list[RunFolder]) -> list[str]:
+    """Lines naming each unfinished run (the tables leave them out), where it stopped and the command that
+    continues it."""
+    if not runs:
+        return []
+    lines = [
+        f"evaluate: {len(runs)} unfinished run{'s are' if len(runs) > 1 else ' is'} not in the tables (stopped, or "
+        "still training); running again the sweep, quick or study that started them continues them all, or each:"
+    ]
+    for run in runs:
+        checkpoint = run.checkpoint
+        where = f"checkpoint at step {checkpoint.num_timesteps}" if checkpoint else "no checkpoint: from step 0"
+        lines.append(f"  {run.algo} on {run.env_id} seed {run.seed} ({where}): {continue_command(run)}")
+    return lines
+
+
+def replaced_tables(folder: Path, n_runs: int) -> str | None:
+    """A line saying that this evaluation replaces the tables an earlier one (``quick``, a sweep, ``evaluate``)
+    wrote in ``folder``, when it holds some: when and from how many runs they were made."""
+    previous = folder / "results.csv"
+    if not previous.exists():
+        return None
+    written = time.strftime("%Y-%m-%d %H:%M", time.localtime(previous.stat().st_mtime))
+    try:
+        counted = _runs(len({row.get("run") for row in read_results(previous)}))
+    except (OSError, ValueError, KeyError):
+        counted = "unreadable"
+    return (
+        f"evaluate: replacing the tables of {written} in {folder} ({counted}) with these of {_runs(n_runs)}: "
+        "results.*, scores.csv, aggregate.* and their figures in plots/"
+    )
+
+
+def _runs(count: int) -> str:
+    return f"{count} run{'s' if count != 1 else ''}"
+
+
+def _files_now(folder: Path) -> set[Path]:
+    """The files of ``folder`` and ``folder/plots``."""
+    return {path for where in (folder, folder / "plots") if where.is_dir() for path in where.iterdir()}
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="sgfd-zoo evaluate", description=__doc__)
     parser.add_argument("-f", "--folder", required=True, type=Path, help="log folder of sgfd-zoo train")
@@ -229,8 +286,15 @@ def main(argv: list[str]) -> int:
     for env_id in args.env or []:
         check_env_id(env_id)
     runs = find_runs(args.folder, args.algo, args.env)
+    unfinished = [run for run in find_runs(args.folder, args.algo, args.env, finished=False) if not run.finished]
+    for line in unfinished_report(unfinished):
+        print(line)
     if not runs:
         raise ZooError(f"no finished run under {args.folder} (expected <algo>/<EnvName>_<id>/<EnvName>.zip)")
+    replacing = replaced_tables(args.folder, len(runs))
+    if replacing is not None:
+        print(replacing)
+    before = _files_now(args.folder)
     import torch as th
 
     th.set_num_threads(args.num_threads)
@@ -243,5 +307,8 @@ def main(argv: list[str]) -> int:
     print()
     print(md_path.read_text())
     print(markdown)
-    print(f"Wrote {csv_path}, {md_path}, " + ", ".join(str(path) for path in files))
+    written = [csv_path, md_path, *files]
+    new = ", ".join(str(path) for path in written if path not in before)
+    replaced = ", ".join(str(path) for path in written if path in before)
+    print("; ".join(filter(None, [new and f"Wrote {new}", replaced and f"{'r' if new else 'R'}eplaced {replaced}"])))
     return 0

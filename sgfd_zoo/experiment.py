@@ -33,7 +33,7 @@ from sb3_sgfd.common.representation import REPRESENTATIONS
 from sb3_sgfd.common.validation import RefusedTransition
 from sgfd_envs.backgrounds import overlay_bank
 from sgfd_zoo import provenance, training_state
-from sgfd_zoo.algos import SGFD_ALGOS
+from sgfd_zoo.algos import SGFD_ALGOS, classifier_start_warning, is_sgfd
 from sgfd_zoo.arguments import TrainingStopped, ZooError, check_keywords, train_command
 from sgfd_zoo.callbacks import (
     CHECKPOINT_PARTS,
@@ -60,6 +60,7 @@ from sgfd_zoo.runs import (
     runs_by_id,
     write_failure,
     write_index,
+    write_json,
 )
 from sgfd_zoo.training_state import RestoreTrainingState
 
@@ -175,6 +176,8 @@ class SGFDExperimentManager(ExperimentManager):
     :param command: The ``sgfd-zoo train`` flags of this run, to print the command that continues it
     :param default_save_freq: No ``--save-freq`` was given: checkpoint every :func:`default_checkpoint_interval`
         steps of this run
+    :param classifier_start: ``classifier_start`` of an SGFD algorithm (``--classifier-start``); the others have
+        no classifier and ignore it, so that a sweep may mix them
     """
 
     def __init__(
@@ -188,6 +191,7 @@ class SGFDExperimentManager(ExperimentManager):
         check_only: bool = False,
         command: Sequence[str] | None = None,
         default_save_freq: bool = False,
+        classifier_start: int | None = None,
         **kwargs,
     ):
         algo = args[1] if len(args) > 1 else kwargs["algo"]
@@ -207,6 +211,7 @@ class SGFDExperimentManager(ExperimentManager):
         self.resume = resume
         self.command = None if command is None else list(command)
         self.default_save_freq = default_save_freq
+        self.classifier_start = classifier_start
         self.stop = StopRequest()
         self.checkpoint: Checkpoint | None = None
         self.checkpointer: ResumableCheckpointCallback | None = None
@@ -229,6 +234,10 @@ class SGFDExperimentManager(ExperimentManager):
         if self.algo in SGFD_ALGOS:
             # The ablations are the SGFD entries with one part switched off; the saved config shows it.
             overrides = {**SGFD_ALGOS[self.algo].overrides, **(self.custom_hyperparams or {})}
+            if self.classifier_start is not None and is_sgfd(self.algo):
+                if "classifier_start" in (self.custom_hyperparams or {}):
+                    raise ZooError("--classifier-start and --hyperparams classifier_start:... both set; give one")
+                overrides["classifier_start"] = self.classifier_start
             hyperparams.update(overrides)
             saved.update(overrides)
         return hyperparams, saved
@@ -251,6 +260,10 @@ class SGFDExperimentManager(ExperimentManager):
         check_policy_fits(self.algo, processed, observes_pixels(self.env_kwargs))
         check_nested_kwargs(self.algo, processed)
         self._add_overlay_images(processed)
+        # After the checks: a configuration that is refused gets its one line only.
+        warning = classifier_start_warning(self.algo, processed, self.n_timesteps)
+        if warning is not None:
+            print(f"warning: {warning}", file=sys.stderr)
         return processed, env_wrapper, callbacks, vec_env_wrapper
 
     def _add_overlay_images(self, hyperparams: dict[str, Any]) -> None:
@@ -311,7 +324,10 @@ class SGFDExperimentManager(ExperimentManager):
         if self.progress_reporter is not None:
             evaluation = next((c for c in self.callbacks if isinstance(c, MultiSplitEvalCallback)), None)
             latest = None if evaluation is None else evaluation.latest_returns
-            self.callbacks.append(ProgressCallback(self.progress_reporter, self.n_timesteps, latest))
+            progress = ProgressCallback(self.progress_reporter, self.n_timesteps, latest)
+            if evaluation is not None:
+                evaluation.on_split = progress.evaluating
+            self.callbacks.append(progress)
         if self.training_state is not None:  # last: after every other callback has started
             self.callbacks.append(RestoreTrainingState(self.training_state))
 
@@ -369,6 +385,8 @@ class SGFDExperimentManager(ExperimentManager):
 
     def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
         super()._save_config(saved_hyperparams)
+        if self.command is not None:  # what `sgfd-zoo evaluate` prints to continue an unfinished run
+            write_json(RunFolder(Path(self.save_path)).command_file, self.command)
         # Appended, not replaced: a resumed run's later steps may come from other code.
         versions = RunFolder(Path(self.save_path)).versions_file
         start = 0 if self.checkpoint is None else self.checkpoint.num_timesteps

@@ -52,8 +52,9 @@ def mean_and_band(curves: list[Curve], n_points: int = 200) -> tuple[np.ndarray,
     return grid, values.mean(axis=0), values.std(axis=0)
 
 
-def plot_env(env_id: str, curves: dict[str, dict[str, list[Curve]]], out: Path) -> Path:
-    """One panel per split: per algorithm, the mean evaluation return and a band of one std over seeds."""
+def draw_env(env_id: str, curves: dict[str, dict[str, list[Curve]]]) -> Figure:
+    """One panel per split: per algorithm, the mean evaluation return and a band of one std over seeds; a run
+    evaluated once (or runs that share one step) is a point with an error bar, since a band needs two steps."""
     splits = [split for split in sgfd_envs.splits(env_id) if split in curves]
     fig = Figure(figsize=(4.5 * len(splits), 3.5))
     axes = fig.subplots(1, len(splits), squeeze=False)
@@ -62,6 +63,9 @@ def plot_env(env_id: str, curves: dict[str, dict[str, list[Curve]]], out: Path) 
             runs = curves[split][algo]
             steps, mean, std = mean_and_band(runs)
             label = f"{column_name(algo)} ({len(runs)} seed{'s' if len(runs) > 1 else ''})"
+            if len(steps) == 1:
+                ax.errorbar(steps, mean, yerr=std, fmt="o", capsize=4, label=label)
+                continue
             (line,) = ax.plot(steps, mean, label=label)
             ax.fill_between(steps, mean - std, mean + std, color=line.get_color(), alpha=0.2)
         ax.set_title(f"{env_id.split('/')[-1]}: {split}")
@@ -70,8 +74,13 @@ def plot_env(env_id: str, curves: dict[str, dict[str, list[Curve]]], out: Path) 
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
+    return fig
+
+
+def plot_env(env_id: str, curves: dict[str, dict[str, list[Curve]]], out: Path) -> Path:
+    """:func:`draw_env`, saved as ``out/<EnvName>.png``; returns its path."""
     path = out / f"{env_name(env_id)}.png"
-    fig.savefig(path, dpi=100)
+    draw_env(env_id, curves).savefig(path, dpi=100)
     return path
 
 

@@ -40,15 +40,36 @@ def returns_text(report: dict[str, Any]) -> str:
     return ", ".join(f"{split} {value:.1f}" for split, value in returns.items())
 
 
-def progress_line(name: str, report: dict[str, Any]) -> str:
-    """One run's line: steps done of total, steps/s, ETA, the latest evaluation returns.
+def activity_text(report: dict[str, Any], now: float | None = None) -> str:
+    """What the run does now, with its pace: ``90 steps/s  ETA  2m37s`` while it learns (the rate and the ETA from
+    its learning steps: the warm-up's random actions are many times faster), ``warm-up to step 1000`` before,
+    ``evaluating extrapolation for 1m05s`` while an evaluation runs (it reports nothing else meanwhile).
 
-    :param name: the run, e.g. ``sgfd_sac MT-walker-walk seed 0``
-    :param report: its latest report (steps, total, steps_per_second, returns)
+    :param report: the run's latest report (steps, total, steps_per_second, learning_starts, evaluating, ...)
+    :param now: the wall-clock time (default: now), for how long the evaluation has run
     """
     steps, total, rate = report["steps"], report["total"], report.get("steps_per_second", 0.0)
+    if report.get("evaluating"):
+        since = report.get("evaluating_since")
+        for_how_long = "" if since is None else f" for {duration((now or time.time()) - since)}"
+        return f"evaluating {report['evaluating']}{for_how_long}"
+    learning_starts = report.get("learning_starts", 0)
+    if steps < learning_starts:
+        return f"warm-up to step {learning_starts} (random actions)"
     eta = duration((total - steps) / rate) if rate > 0 and steps < total else "-"
-    line = f"{name:<44} {steps:>8}/{total:<8} {100 * steps / max(total, 1):>3.0f}%  {rate:>5.0f} steps/s  ETA {eta:>6}"
+    return f"{rate:>5.0f} steps/s  ETA {eta:>6}"
+
+
+def progress_line(name: str, report: dict[str, Any], now: float | None = None) -> str:
+    """One run's line: steps done of total, what it does now and its pace (:func:`activity_text`), the latest
+    evaluation returns.
+
+    :param name: the run, e.g. ``sgfd_sac MT-walker-walk seed 0``
+    :param report: its latest report (steps, total, steps_per_second, learning_starts, evaluating, returns)
+    :param now: the wall-clock time (default: now)
+    """
+    steps, total = report["steps"], report["total"]
+    line = f"{name:<44} {steps:>8}/{total:<8} {100 * steps / max(total, 1):>3.0f}%  {activity_text(report, now)}"
     evaluated = returns_text(report)
     return f"{line}  eval: {evaluated}" if evaluated else line
 

@@ -1,33 +1,120 @@
 """
-``sgfd-zoo quick``: the whole pipeline in about ten minutes on a 2-core CPU. A sweep (``sgfd-zoo sweep``) of
-SGFD_SAC and the SAC (Domain Randomisation) baseline with the quick configuration (sgfd_zoo/hyperparams/quick:
-state observations with the morphology parameter, small networks, 20k steps) on two seeds, one run per CPU
-core at a time, with live progress; then evaluation on the training domains and the unseen ones: the
-paper-style tables, and the aggregate statistics with 95% confidence intervals over the seeds; and the
-learning curves. Runs already finished in the folder are kept, so running it again only adds what is
-missing (e.g. more --seeds).
+``sgfd-zoo quick``: the main job, SGFD against its SAC (Domain Randomisation) baseline. A sweep (``sgfd-zoo
+sweep``) of both with the quick configuration (sgfd_zoo/hyperparams/quick: state observations with the morphology
+parameter, 128-wide networks, 20k steps, SGFD's classifier from the fifth of the run) on two seeds, one run per CPU
+core at a time, with live progress; then evaluation on the training domains and the unseen ones: the paper-style
+tables, and the aggregate statistics with 95% confidence intervals over the seeds; and the learning curves.
+``-n`` sets another length, and SGFD's classifier start moves with it; ``--short`` is the whole pipeline in a few
+minutes, too short to learn the task. Runs already finished in the folder are kept, so running it again only
+adds what is missing (e.g. more --seeds).
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from pathlib import Path
 
-from sgfd_zoo import plot, sweep
-from sgfd_zoo.algos import SGFD_ALGOS
-from sgfd_zoo.arguments import check_at_least, check_env_id
+from sgfd_zoo.algos import SGFD_ALGOS, is_sgfd
+from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id
 
-DEFAULT_STEPS = 20_000
+# --short: a run length and final evaluation episodes for a job of a few minutes.
+SHORT_STEPS = 6_000
+SHORT_EVAL_EPISODES = 4
+CURVE_POINTS = 4  # evaluations during each run, the last at its end
+# Episodes per split at each of them: one per training domain (the final evaluation, for the tables, has more).
+CURVE_EPISODES = 4
+
+
+def quick_setting(algo: str, env_id: str, key: str) -> object:
+    """``key`` in the quick configuration of ``algo`` on ``env_id`` (its entry, else the file's default)."""
+    import yaml
+
+    from sgfd_zoo.experiment import hyperparams_file
+
+    path = hyperparams_file(algo, quick=True)
+    entries = yaml.safe_load(path.read_text())
+    return {**entries.get("default", {}), **entries.get(env_id, {})}.get(key)
+
+
+def common_setting(algos: Sequence[str], env_id: str, key: str) -> object:
+    """``key`` of the quick configuration, the same for each of ``algos``; a ZooError when they differ."""
+    values = {algo: quick_setting(algo, env_id, key) for algo in algos}
+    if len(set(values.values())) > 1:
+        raise ZooError(f"--algos: their quick configurations differ in {key} ({values}); give it explicitly")
+    return next(iter(values.values()))
+
+
+def scaled_classifier_start(algos: Sequence[str], env_id: str, n_timesteps: int) -> int | None:
+    """
+    SGFD's ``classifier_start`` for a quick run of ``n_timesteps``: the quick configuration's, moved in proportion
+    to the run's length, so that a shorter run still trains SGFD's classifier and reweights for the same share of
+    it. None when no algorithm of ``algos`` is SGFD's or the run has the configuration's length.
+
+    :param algos: the job's algorithm keys
+    :param env_id: its env id
+    :param n_timesteps: its run length
+    """
+    sgfd = [algo for algo in algos if is_sgfd(algo)]
+    if not sgfd:
+        return None
+    start, length = (int(common_setting(sgfd, env_id, key)) for key in ("classifier_start", "n_timesteps"))  # type: ignore[call-overload]
+    return None if n_timesteps == length else round(start * n_timesteps / length)
+
+
+def check_run_lengths(folder: Path, algos: Sequence[str], env_id: str, n_timesteps: int) -> None:
+    """A ZooError when ``folder`` holds runs of these algorithms on ``env_id`` of another length: the job keeps
+    the runs it finds finished, and its tables would mix lengths."""
+    from sgfd_zoo.runs import find_runs
+
+    other = []
+    for run in find_runs(folder, algos, [env_id], finished=False):
+        steps = int(run.args.get("n_timesteps") or -1)
+        steps = steps if steps > 0 else int(quick_setting(run.algo, env_id, "n_timesteps"))  # type: ignore[call-overload]
+        if steps != n_timesteps:
+            other.append(f"{run.algo} seed {run.seed}: {steps}")
+    if other:
+        raise ZooError(
+            f"--folder {folder} holds runs of another length ({', '.join(other)} steps); this job trains "
+            f"{n_timesteps} steps per run: choose another --folder"
+        )
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="sgfd-zoo quick", description=__doc__)
+    parser = argparse.ArgumentParser(prog="sgfd-zoo quick", description=__doc__.replace("``", "`"))
     parser.add_argument("--env", default="SGFD/MT-walker-walk-v0", help="a registered id (sgfd_envs.ENV_IDS)")
-    parser.add_argument("--algos", nargs="+", default=["sgfd_sac", "sac"], choices=sorted(SGFD_ALGOS))
+    parser.add_argument(
+        "--algos",
+        nargs="+",
+        default=["sgfd_sac", "sac"],
+        choices=sorted(SGFD_ALGOS),
+        metavar="ALGO",
+        help=f"algorithm keys (default: sgfd_sac sac): {', '.join(SGFD_ALGOS)}",
+    )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1], help="seeds: the spread of the results")
-    parser.add_argument("-f", "--folder", type=Path, default=Path("logs/quick"), help="log folder")
-    parser.add_argument("-n", "--n-timesteps", type=int, help=f"override the quick configuration's {DEFAULT_STEPS}")
-    parser.add_argument("--eval-episodes", type=int, default=8, help="episodes per split")
+    parser.add_argument(
+        "-f", "--folder", type=Path, help="log folder (default: logs/quick, with --short logs/quick-short)"
+    )
+    length = parser.add_mutually_exclusive_group()
+    length.add_argument(
+        "-n",
+        "--n-timesteps",
+        type=int,
+        help="steps per run (default: the quick configuration's, 20000); SGFD's classifier start moves with it",
+    )
+    length.add_argument(
+        "--short",
+        action="store_true",
+        help=f"-n {SHORT_STEPS} and --eval-episodes {SHORT_EVAL_EPISODES}: every part in a few minutes, too short "
+        "to learn the task",
+    )
+    parser.add_argument("--eval-episodes", type=int, help="episodes per split in the final evaluation (default: 8)")
+    parser.add_argument(
+        "--curve-episodes",
+        type=int,
+        help=f"episodes per split at each of the {CURVE_POINTS} evaluations during a run, the learning curves "
+        f"(default: {CURVE_EPISODES}, or --eval-episodes if fewer)",
+    )
     parser.add_argument(
         "--progress-interval", type=float, default=60.0, help="seconds between progress blocks in a log"
     )
@@ -35,16 +122,27 @@ def main(argv: list[str]) -> int:
     check_env_id(args.env)
     check_at_least("--n-timesteps", args.n_timesteps, 1)
     check_at_least("--eval-episodes", args.eval_episodes, 1)
+    check_at_least("--curve-episodes", args.curve_episodes, 1)
 
-    n_timesteps = args.n_timesteps or DEFAULT_STEPS
+    if args.short:
+        args.n_timesteps = SHORT_STEPS
+    eval_episodes = args.eval_episodes or (SHORT_EVAL_EPISODES if args.short else 8)
+    n_timesteps = args.n_timesteps or int(common_setting(args.algos, args.env, "n_timesteps"))  # type: ignore[call-overload]
+    folder = args.folder or Path("logs/quick-short" if args.short else "logs/quick")
+    check_run_lengths(folder, args.algos, args.env, n_timesteps)
     sweep_args = ["--algos", *args.algos, "--envs", args.env, "--seeds", *map(str, args.seeds)]
-    sweep_args += ["-f", str(args.folder), "--n-episodes", str(args.eval_episodes)]
+    sweep_args += ["-f", str(folder), "--n-episodes", str(eval_episodes)]
     sweep_args += ["--progress-interval", str(args.progress_interval)]
-    train_args = ["--quick", "--eval-freq", str(max(n_timesteps // 4, 1)), "--eval-episodes", str(args.eval_episodes)]
-    train_args += ["--no-progress", "--verbose", "0"]
-    if args.n_timesteps is not None:
-        train_args += ["-n", str(args.n_timesteps)]
+    train_args = ["--quick", "-n", str(n_timesteps), "--eval-freq", str(max(n_timesteps // CURVE_POINTS, 1))]
+    curve_episodes = args.curve_episodes or min(CURVE_EPISODES, eval_episodes)
+    train_args += ["--eval-episodes", str(curve_episodes), "--no-progress", "--verbose", "0"]
+    classifier_start = scaled_classifier_start(args.algos, args.env, n_timesteps)
+    if classifier_start is not None:
+        train_args += ["--classifier-start", str(classifier_start)]
+        print(f"quick: {n_timesteps} steps per run; SGFD's classifier starts at step {classifier_start}")
+    from sgfd_zoo import plot, sweep  # here: --help and a bad flag answer without loading the sweep
+
     status = sweep.main([*sweep_args, *train_args])
     if status == 0:
-        plot.main(["-f", str(args.folder)])
+        plot.main(["-f", str(folder)])
     return status

@@ -425,6 +425,19 @@ class RunFolder(_NamedRun):
         return self.path / "final_evaluation.json"
 
     @property
+    def command_file(self) -> Path:
+        """The ``sgfd-zoo train`` flags the run was last started or resumed with (JSON), to say how it goes on."""
+        return self.path / "command.json"
+
+    def train_argv(self) -> list[str] | None:
+        """Those flags; None for a run that did not record them (older runs) or whose file is unreadable."""
+        try:
+            argv = _read_json(self.command_file)
+        except UnreadableFile:
+            return None
+        return [str(arg) for arg in argv] if isinstance(argv, list) else None
+
+    @property
     def config_dir(self) -> Path:
         return self.path / env_name(self.env_id)
 

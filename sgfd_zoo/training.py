@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from sgfd_zoo.algos import SGFD_ALGOS
-from sgfd_zoo.arguments import ZooError, check_env_id, flag_value, has_flag
+from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id, flag_value, has_flag
 
 
 def train(
@@ -44,6 +44,13 @@ def train(
     parser.add_argument("--resume", action="store_true", help="continue the newest run from its last checkpoint")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
+        "--classifier-start",
+        type=int,
+        metavar="STEPS",
+        help="env steps before SGFD's domain classifier starts training (classifier_start of the SGFD algorithms; "
+        "the others have none, so a sweep may mix them)",
+    )
+    parser.add_argument(
         "--run-id", type=int, help="write to (and --resume) the run folder <EnvName>_<id>; default: newest id + 1"
     )
     ours, rest = parser.parse_known_args(list(argv))
@@ -52,6 +59,7 @@ def train(
         print("\nrl-zoo3's options follow (all accepted):\n")
     else:
         check_env_id(ours.env)
+        check_at_least("--classifier-start", ours.classifier_start, 0)
     rest = ["--algo", ours.algo, "--env", str(ours.env), *rest]
     if optimize:
         rest += ["-optimize"] + ([] if has_flag(rest, "--no-optim-plots") else ["--no-optim-plots"])
@@ -67,6 +75,7 @@ def train(
         check_only=check_only,
         command=list(argv),
         default_save_freq=not has_flag(rest, "--save-freq"),
+        classifier_start=ours.classifier_start,
     )
     quiet = contextlib.redirect_stdout(io.StringIO()) if check_only else contextlib.nullcontext()
     with replaced(rl_zoo3.train, "ExperimentManager", manager), command_line(parser.prog, rest), quiet:

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import io
+from types import SimpleNamespace
 
 import numpy as np
 
 import sgfd_envs
 from sb3_sgfd import EncoderSAC
+from sgfd_zoo import callbacks, training
 from sgfd_zoo.callbacks import MultiSplitEvalCallback, ProgressCallback
 from sgfd_zoo.progress import LiveView, ProgressBoard, duration, progress_block, progress_line
 
@@ -103,3 +105,67 @@ def test_a_restarted_run_replaces_the_evaluations_its_interrupted_attempt_made_l
     with np.load(tmp_path / "evaluations_extrapolation.npz") as data:
         assert data["timesteps"].tolist() == [60]
         assert data["results"].shape == (1, 1) and data["results"][0, 0] != 0
+
+
+class Clock:
+    """A monotonic clock the test moves."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_the_rate_and_eta_count_learning_steps_only(monkeypatch):
+    # 1000 random-action steps in 1 s, then 100 learning steps in 10 s: the run goes on at 10 steps/s, not 100.
+    clock = Clock()
+    monkeypatch.setattr(callbacks.time, "monotonic", clock)
+    reports: list[dict] = []
+    model = SimpleNamespace(num_timesteps=0, learning_starts=1000, get_env=lambda: None, logger=None)
+    progress = ProgressCallback(reports.append, 20_000, interval=0.5)
+    progress.init_callback(model)
+    progress.on_training_start({}, {})
+    for steps, now in ((500, 1000.5), (1000, 1001.0), (1050, 1006.0), (1100, 1011.0)):
+        model.num_timesteps, clock.now = steps, now
+        progress.on_step()
+    warm_up, learning = reports[1], reports[-1]
+    assert warm_up["steps"] == 500 and warm_up["steps_per_second"] == 0 and warm_up["learning_starts"] == 1000
+    assert "warm-up to step 1000" in progress_line("run", warm_up) and "ETA" not in progress_line("run", warm_up)
+    assert learning["steps"] == 1100 and learning["steps_per_second"] == 10.0
+    assert "10 steps/s  ETA 31m30s" in progress_line("run", learning)  # 18900 steps left at 10 steps/s
+
+
+def test_an_evaluation_is_reported_as_it_starts_each_split_and_as_it_ends():
+    reports: list[dict] = []
+    env = sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", obs_type="state")
+    model = EncoderSAC("MlpPolicy", env, learning_starts=50, batch_size=16, policy_kwargs=dict(net_arch=[16]))
+    splits = ("interpolation", "extrapolation")
+    evaluation_envs = {
+        split: sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", split=split, obs_type="state")
+        for split in splits
+    }
+    evaluation = MultiSplitEvalCallback(evaluation_envs, eval_freq=15, n_eval_episodes=1, verbose=0)
+    progress = ProgressCallback(reports.append, 60, evaluation.latest_returns, interval=3600.0)
+    evaluation.on_split = progress.evaluating  # as the zoo's runs wire them
+    model.learn(60, callback=[evaluation, progress])  # 4 sub-envs: one evaluation, at 60 steps
+    evaluating = [report.get("evaluating") for report in reports]
+    # the start, each split as it starts, the end of the evaluation, the end of the run
+    assert evaluating == [None, "interpolation", "extrapolation", None, None]
+    assert all(report["steps"] == 60 for report in reports[1:])
+    assert "evaluating interpolation for 0s" in progress_line("run", reports[1], now=reports[1]["evaluating_since"])
+    later = progress_line("run", reports[2], now=reports[2]["evaluating_since"] + 65)
+    assert "evaluating extrapolation for 1m05s" in later and "ETA" not in later
+    after = progress_line("run", reports[3])
+    assert "evaluating" not in after and "eval: interpolation" in after and "extrapolation" in after
+
+
+def test_a_zoo_run_reports_its_evaluations_and_warm_up_to_the_sweep(tmp_path):
+    reports: list[dict] = []
+    argv = ["--algo", "sac", "--env", "SGFD/MT-walker-walk-v0", "--quick", "-n", "80", "-f", str(tmp_path)]
+    argv += ["--eval-freq", "80", "--eval-episodes", "1", "--no-progress", "--verbose", "0", "--num-threads", "1"]
+    argv += ["-params", "learning_starts:40", "batch_size:16", "policy_kwargs:dict(net_arch=[16])"]
+    training.train(argv, progress_reporter=reports.append)
+    assert reports[0]["learning_starts"] == 40 and "warm-up to step 40" in progress_line("run", reports[0])
+    assert [r["evaluating"] for r in reports if "evaluating" in r] == ["train", "interpolation", "extrapolation"]
+    assert reports[-1]["done"] and "evaluating" not in reports[-1]

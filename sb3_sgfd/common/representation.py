@@ -70,10 +70,8 @@ class Batch(NamedTuple):
 
 
 class Representation(nn.Module):
-    """Base class of the encoder objectives; subclasses override what they add.
-
-    :param kwargs: the objective's hyperparameters (see each subclass)
-    """
+    """Base class of the encoder objectives; subclasses take their hyperparameters as keyword arguments and
+    override what they add."""
 
     name: ClassVar[str] = ""
     #: The objective needs the replay buffer to return ``same_episode_observations`` (TED).

@@ -16,7 +16,7 @@ loss only):
    w = softmax(theta), minimising L / L.detach() + 5 P / P.detach() (the gradient of log L + 5 log P), P = sum
    w^2, L = sum over channels c and pairs i != j of p_i p_j Cov_c(u_i, u_j)^2 under the softmax weights of the
    batch and a memory of past batches together; the random Fourier features are drawn anew every epoch:
-   u_i = sqrt(2 / m) [cos, sin](s_i), s_i = x_i omega_f + psi_if min-max scaled over the features (per sample
+   ``u_i = sqrt(2 / m) [cos, sin](s_i)``, s_i = x_i omega_f + psi_if min-max scaled over the features (per sample
    and function) to [0, pi/2], one omega_f per function shared by every feature, so 2 m channels;
 4. the memory (features and logits, batch-sized) is a running mean of the solved batches for its first 10
    updates, then an exponential average with momentum 0.9; its rows enter the loss with their logits fixed.
