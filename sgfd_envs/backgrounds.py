@@ -200,7 +200,7 @@ def overlay_bank(height: int, width: int, n_images: int = len(OVERLAY_SEEDS)) ->
 def _decode_video(path: str, height: int, width: int, frame_budget: int, grayscale: bool) -> np.ndarray:
     """Up to ``frame_budget`` fitted frames of a video, cached so envs sharing a source share memory."""
     capture = cv2.VideoCapture(path)
-    frames = []
+    frames: list[np.ndarray] = []
     try:
         while len(frames) < frame_budget:
             ok, frame = capture.read()

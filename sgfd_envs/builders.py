@@ -10,13 +10,15 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+from dm_control.mujoco import Physics
+from dm_control.rl import control
 
 from sgfd_envs import domains
 from sgfd_envs.backgrounds import DEFAULT_FRAME_BUDGET, check_background_split, make_background, n_background_domains
 from sgfd_envs.benchmarks import dcs, dmcgb, dmcgb2
 from sgfd_envs.benchmarks.media import check_data_dir, davis_folder
 from sgfd_envs.causal_world import CausalWorldEnv, make_causal_world_env
-from sgfd_envs.dmc import DMCEnv, DomainLabel, check_image_size
+from sgfd_envs.dmc import Distraction, DMCEnv, DomainLabel, check_image_size
 from sgfd_envs.morphology import SETTINGS, check_domain, select_setting
 from sgfd_envs.registry import (
     BACKGROUND,
@@ -160,8 +162,8 @@ def _benchmark_env(
     split: str,
     domain: int,
     common: dict[str, Any],
-    make_distraction: Callable[[Any], Any],
-    dm_env: Any = None,
+    make_distraction: Callable[[Physics], Distraction],
+    dm_env: control.Environment | None = None,
     **data_kwargs: Any,
 ) -> DMCEnv:
     """A benchmark id's env: its dm_control task, and ``make_distraction(physics)`` unless the split is train.
@@ -225,8 +227,9 @@ def make_dmcgb_env(
     if background_dir is not None:
         davis_folder(background_dir)
 
-    def make_distraction(physics: Any) -> Any:
+    def make_distraction(physics: Physics) -> Distraction:
         if split == dmcgb.DISTRACTING_CS:
+            assert intensity is not None  # check_intensity requires one with this split
             return dmcgb.distracting_cs(physics, entry.robot, intensity, image_size, background_dir, render)
         return dmcgb.DMCGBDistraction(physics, split, image_size, data_dir)
 
@@ -276,8 +279,9 @@ def make_dmcgb2_env(
         side = dmcgb2.projector_texture_side(image_size, render)
         dm_env = dmcgb2.load_with_projector(entry.robot, entry.task, side)
 
-    def make_distraction(physics: Any) -> Any:
+    def make_distraction(physics: Physics) -> Distraction:
         if split == dmcgb.DISTRACTING_CS:
+            assert intensity is not None  # check_intensity requires one with this split
             return dmcgb.distracting_cs(
                 physics, entry.robot, intensity, image_size, background_dir, render, interpolation=dmcgb2.RESIZE
             )
@@ -330,7 +334,7 @@ def make_dcs_env(
     if background_dir is not None:
         davis_folder(background_dir)
 
-    def make_distraction(physics: Any) -> Any:
+    def make_distraction(physics: Physics) -> Distraction:
         scale, n_videos = dcs.DIFFICULTIES[split]
         return dcs.DCSDistraction(
             physics, entry.robot, scale, n_videos, dynamic, distractions, background_videos, image_size,
@@ -360,7 +364,7 @@ def env_kwargs_of(env_id: str) -> tuple[str, ...]:
     :param env_id: one of :data:`TASKS`
     """
     builder = BUILDERS[task_entry(env_id).variation]
-    names = inspect.signature(builder).parameters
+    names: Mapping[str, inspect.Parameter] = inspect.signature(builder).parameters
     if builder is make_causal_world_env:
         names = {**names, **inspect.signature(CausalWorldEnv).parameters}
     return tuple(name for name in names if name not in ("env_id", "task", "kwargs"))

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -118,7 +118,8 @@ class CausalWorldEnv(gym.Env[np.ndarray, np.ndarray]):
     :param render_mode: None or ``"rgb_array"`` (Causal World's view from above)
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 25}
+    # gymnasium's Env declares metadata an instance attribute (wrappers and envs may set it per env): no ClassVar.
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 25}  # noqa: RUF012
 
     def __init__(
         self,
@@ -208,7 +209,7 @@ class CausalWorldEnv(gym.Env[np.ndarray, np.ndarray]):
         obs, _ = self._env.reset(seed=seed)
         return np.asarray(obs, dtype=np.float32), self._info()
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, int]]:
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         """One agent step of ``skip_frame`` simulator steps.
 
         :param action: joint positions, normalised to [-1, 1]

@@ -13,6 +13,7 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
+from sgfd_envs.dmc import DMCEnv
 from sgfd_envs.registry import BENCHMARK_IDS, SGFD_IDS, benchmark_of, splits, test_splits
 
 _TILE = 168
@@ -34,6 +35,8 @@ def observe(env_id: str, split: str, steps: int, seed: int, image_size: int) -> 
         for _ in range(steps):
             observation, *_ = env.step(env.action_space.sample())
         unwrapped = env.unwrapped
+        if not isinstance(unwrapped, DMCEnv):
+            raise ValueError(f"env_id must be one of SGFD_IDS or BENCHMARK_IDS (a DeepMind Control id), got {env_id!r}")
         # A benchmark's split is one distribution (domain 0 says nothing).
         caption = split if benchmark_of(env_id) else f"{split} 0"
         if unwrapped.setting is not None:

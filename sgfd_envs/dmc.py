@@ -12,7 +12,7 @@ drawn (materials, textures, the camera's pose for one render) and never the phys
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar, Protocol
+from typing import Any, Protocol
 
 import gymnasium as gym
 import mujoco
@@ -23,6 +23,7 @@ from gymnasium import spaces
 
 from sgfd_envs.backgrounds import BackgroundSource, composite
 from sgfd_envs.rendering import HIDE_MODES, CameraRenderer, check_render, configure_offscreen_buffer
+from sgfd_envs.state import HasState
 
 OBS_TYPES = ("pixels", "state")
 
@@ -125,7 +126,8 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         None when it shows the data itself; ``info["stand_in"]`` says whether there is one
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 25}
+    # gymnasium's Env declares metadata an instance attribute (__init__ sets this env's render_fps): no ClassVar.
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 25}  # noqa: RUF012
 
     def __init__(
         self,
@@ -251,6 +253,7 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         rgb, coverage = self._renderer.render()
         if self._background is None:
             return rgb
+        assert coverage is not None  # the renderer hides the backdrop, so it reports the coverage
         start = int(self._background_phase * self._background.n_frames)
         index = start + self._agent_steps
         return composite(rgb, coverage, self._background.frame(index))
@@ -281,7 +284,7 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
             self._background_phase = float(self.np_random.random())
         if self._distraction is not None:
             reseeded = seed is not None or self._distraction_rng is None
-            if reseeded:
+            if reseeded or self._distraction_rng is None:
                 entropy = None if seed is None else [int(seed), DISTRACTION_SEED_STREAM]
                 self._distraction_rng = np.random.default_rng(entropy)
             self._distraction.start_episode(self._distraction_rng, reseeded)
@@ -316,7 +319,7 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
     @property
     def state_unavailable(self) -> str | None:
         """Why ``get_state`` cannot give this env's state, or None when it can."""
-        if self._distraction is not None and not hasattr(self._distraction, "get_state"):
+        if self._distraction is not None and not isinstance(self._distraction, HasState):
             return f"its distraction ({type(self._distraction).__name__}) keeps a state get_state does not take"
         return None
 
@@ -332,7 +335,7 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         if self.state_unavailable is not None:
             raise NotImplementedError(f"{self.spec.id if self.spec else 'this env'}: {self.state_unavailable}")
         physics = self._dm_env.physics
-        distraction = None if self._distraction is None else self._distraction.get_state()
+        distraction = self._distraction.get_state() if isinstance(self._distraction, HasState) else None
         return {
             "physics": physics.get_state(mujoco.mjtState.mjSTATE_INTEGRATION),
             "model": {name: getattr(physics.model, name).copy() for name in TASK_MODEL_FIELDS},
@@ -366,7 +369,7 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         if state["distraction_random"] is not None:
             self._distraction_rng = np.random.default_rng()
             self._distraction_rng.bit_generator.state = state["distraction_random"]
-        if self._distraction is not None and state["distraction"] is not None:
+        if isinstance(self._distraction, HasState) and state["distraction"] is not None:
             self._distraction.set_state(state["distraction"])
         self._last_frame = None
 

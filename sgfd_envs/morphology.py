@@ -172,6 +172,18 @@ def find_named(root: ET.Element, tag: str, name: str) -> ET.Element:
     return found[0]
 
 
+def find_child(root: ET.Element, tag: str) -> ET.Element:
+    """The first ``<tag>`` child of ``root`` (e.g. ``"worldbody"``).
+
+    :param root: model tree
+    :param tag: element tag
+    """
+    child = root.find(tag)
+    if child is None:
+        raise KeyError(f"expected a <{tag}> in the model, found none")
+    return child
+
+
 def get_floats(element: ET.Element, attribute: str) -> np.ndarray:
     """A numeric XML attribute (e.g. ``pos="0 0 1.3"``) as a float array.
 

@@ -172,7 +172,7 @@ def evaluation_modes(env_id: str) -> tuple[tuple[str, dict[str, Any]], ...]:
 
     :param env_id: one of :data:`ENV_IDS`
     """
-    modes = [(split, {"split": split}) for split in splits(env_id)]
+    modes: list[tuple[str, dict[str, Any]]] = [(split, {"split": split}) for split in splits(env_id)]
     for split in PARAMETRIC_SPLITS.get(task_entry(env_id).variation, ()):
         modes += [(f"{split}_{i:g}", {"split": split, "intensity": i}) for i in dmcgb.INTENSITIES]
     return tuple(modes)

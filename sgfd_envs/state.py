@@ -10,12 +10,26 @@ gymnasium's and SB3's wrappers keep (TimeLimit's elapsed steps, Monitor's episod
 from __future__ import annotations
 
 import copy
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
 
 _PLAIN = (bool, int, float, str, type(None), np.ndarray, np.generic)
+
+
+@runtime_checkable
+class HasState(Protocol):
+    """What hands over its state and takes it back: a base env (:meth:`sgfd_envs.dmc.DMCEnv.get_state`) or a
+    benchmark's distraction with a state of its own."""
+
+    def get_state(self) -> Any:
+        """The state: plain data (numbers, strings, arrays and containers of them)."""
+        ...
+
+    def set_state(self, state: Any) -> None:
+        """Continue from ``get_state``'s state, on an object made with the same arguments."""
+        ...
 
 
 def _plain(value: Any) -> bool:
@@ -41,8 +55,8 @@ class ResumableState(gym.Wrapper):
     def training_state_unavailable(self) -> str | None:
         """Why ``get_training_state`` cannot give this env's state, or None when it can."""
         base = _layers(self.env)[-1]
-        if not hasattr(base, "get_state"):
-            return f"{type(base).__name__} has no get_state"
+        if not isinstance(base, HasState):
+            return f"{type(base).__name__} has no get_state and set_state"
         return getattr(base, "state_unavailable", None)
 
     def get_training_state(self) -> list[dict[str, Any]]:
@@ -50,7 +64,7 @@ class ResumableState(gym.Wrapper):
         states = []
         for layer in _layers(self.env):
             if not isinstance(layer, gym.Wrapper):
-                states.append({"env": layer.get_state()} if hasattr(layer, "get_state") else {})
+                states.append({"env": layer.get_state()} if isinstance(layer, HasState) else {})
                 continue
             fields = {name: value for name, value in vars(layer).items() if name != "env" and _plain(value)}
             states.append({"fields": copy.deepcopy(fields)})
@@ -63,6 +77,8 @@ class ResumableState(gym.Wrapper):
             raise ValueError(f"a state of {len(states)} env layers given to an env of {len(layers)}")
         for layer, state in zip(layers, states, strict=True):
             if "env" in state:
+                if not isinstance(layer, HasState):
+                    raise ValueError(f"a state of a base env given to {type(layer).__name__}, which has no set_state")
                 layer.set_state(state["env"])
             for name, value in state.get("fields", {}).items():
                 setattr(layer, name, copy.deepcopy(value))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -11,7 +12,7 @@ from sgfd_envs.registry import n_domains, task_entry
 from sgfd_envs.state import ResumableState
 
 if TYPE_CHECKING:
-    from stable_baselines3.common.vec_env import VecEnv
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 
 def _stable_baselines3() -> Any:
@@ -40,7 +41,7 @@ def make_domain_vec_env(
     split: str = "train",
     n_envs: int | None = None,
     seed: int = 0,
-    vec_env_cls: type[VecEnv] | None = None,
+    vec_env_cls: type[DummyVecEnv | SubprocVecEnv] | None = None,
     **env_kwargs,
 ) -> VecEnv:
     """An SB3 VecEnv with one sub-env per domain of a split (sub-env i is domain i % n_domains).
@@ -52,10 +53,10 @@ def make_domain_vec_env(
     :param split: a split of the id (see :func:`splits`)
     :param n_envs: number of sub-envs, default one per domain
     :param seed: seed of sub-env 0
-    :param vec_env_cls: SB3 VecEnv class, default DummyVecEnv
+    :param vec_env_cls: SB3's DummyVecEnv (the default) or SubprocVecEnv
     :param env_kwargs: more kwargs for ``gym.make`` (``obs_type``, ``image_size``, ``background_dir``...)
     """
-    DummyVecEnv = _stable_baselines3().DummyVecEnv
+    default_vec_env_cls = _stable_baselines3().DummyVecEnv
 
     task_entry(env_id)
     if "domain" in env_kwargs:
@@ -68,9 +69,9 @@ def make_domain_vec_env(
 
     # A module-level function in a partial pickles by reference, so a subprocess imports sgfd_envs
     # (registering the ids) before it builds its env.
-    factories = [
+    factories: list[Callable[[], gym.Env]] = [
         functools.partial(_make_monitored_env, env_id, split, i % count, seed + i, env_kwargs) for i in range(n_envs)
     ]
-    vec_env = (vec_env_cls or DummyVecEnv)(factories)
+    vec_env = (vec_env_cls or default_vec_env_cls)(factories)
     vec_env.seed(seed)
     return vec_env

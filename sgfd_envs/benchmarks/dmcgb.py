@@ -28,6 +28,7 @@ Facts taken from its code:
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import cv2
 import mujoco
@@ -149,21 +150,27 @@ def distracting_cs(
 
 
 class SceneColours:
-    """Puts one of DMC-GB's colour entries on a dm_control scene at runtime, as DMC-GB's XML edit would: the
-    ``self`` material's RGB, the grid texture rebuilt with new rgb1/rgb2, the skybox rebuilt with a new rgb1.
+    """Puts the entries of one of DMC-GB's colour sets on a dm_control scene at runtime, as DMC-GB's XML edit would:
+    the ``self`` material's RGB, the grid texture rebuilt with new rgb1/rgb2, the skybox rebuilt with a new rgb1.
 
     :param physics: the env's physics
+    :param colours: the colour set (entries with keys ``self_rgb``, ``grid_rgb1``, ``grid_rgb2``, ``skybox_rgb``)
     """
 
-    def __init__(self, physics: Physics) -> None:
+    def __init__(self, physics: Physics, colours: list[dict[str, np.ndarray]]) -> None:
         self._physics = physics
+        self.colours = colours
         self._self_material = object_id(physics, mujoco.mjtObj.mjOBJ_MATERIAL, "self")
         self._grid = TextureSlot(physics, "grid")
         self._sky = TextureSlot(physics, "skybox")
         self.current: dict[str, np.ndarray] | None = None
 
-    def apply(self, entry: dict[str, np.ndarray]) -> None:
-        """Use ``entry``'s colours (keys ``self_rgb``, ``grid_rgb1``, ``grid_rgb2``, ``skybox_rgb``)."""
+    def __len__(self) -> int:
+        return len(self.colours)
+
+    def apply(self, index: int) -> None:
+        """Use the colours of entry ``index`` of the set."""
+        entry = self.colours[index]
         self._physics.model.mat_rgba[self._self_material, :3] = entry["self_rgb"]
         self._grid.write(
             suite_texture_data("grid", rgb1=rgb_attribute(entry["grid_rgb1"]), rgb2=rgb_attribute(entry["grid_rgb2"]))
@@ -191,13 +198,11 @@ class DMCGBDistraction:
             raise ValueError(f"mode must be one of {MODES[1:]}, got {mode!r}")
         self.mode = mode
         self.hide = "nothing"
-        self._colours: list[dict[str, np.ndarray]] | None = None
         self._scene_colours: SceneColours | None = None
         self._clips: ClipBank | None = None
         self._green_screen: GreenScreen | None = None
         if mode.startswith("color"):
-            self._colours = colour_set(mode.removeprefix("color_"), data_dir)
-            self._scene_colours = SceneColours(physics)
+            self._scene_colours = SceneColours(physics, colour_set(mode.removeprefix("color_"), data_dir))
         else:
             self._clips = dmcgb_clips(mode, image_size, data_dir)
             self._green_screen = GreenScreen(physics, floor=mode == "video_hard")
@@ -209,16 +214,17 @@ class DMCGBDistraction:
         if reseeded:
             self._episodes_since_seed = 0
         self._episodes_since_seed += 1
-        if self._colours is not None:
-            self.colour_index = int(rng.integers(len(self._colours)))
-            self._scene_colours.apply(self._colours[self.colour_index])
+        if self._scene_colours is not None:
+            self.colour_index = int(rng.integers(len(self._scene_colours)))
+            self._scene_colours.apply(self.colour_index)
         else:
+            assert self._clips is not None  # a video mode
             self.clip_index = self._episodes_since_seed % len(self._clips)
 
     def control_step(self) -> None:
         pass
 
-    def get_state(self) -> dict[str, int | None]:
+    def get_state(self) -> dict[str, Any]:
         """The episode count since seeding and the episode's colour entry or clip."""
         return {
             "episodes_since_seed": self._episodes_since_seed,
@@ -226,17 +232,19 @@ class DMCGBDistraction:
             "clip_index": self.clip_index,
         }
 
-    def set_state(self, state: dict[str, int | None]) -> None:
+    def set_state(self, state: dict[str, Any]) -> None:
         """Continue from ``get_state``'s state, on a distraction made with the same arguments."""
         self._episodes_since_seed = state["episodes_since_seed"]
         self.colour_index, self.clip_index = state["colour_index"], state["clip_index"]
-        if self.colour_index is not None:
-            self._scene_colours.apply(self._colours[self.colour_index])
+        if self._scene_colours is not None and self.colour_index is not None:
+            self._scene_colours.apply(self.colour_index)
 
     def render(self, renderer: CameraRenderer, agent_step: int) -> np.ndarray:
         if self._scene_colours is not None:
             self._scene_colours.upload(renderer)
             return renderer.render()[0]
+        # a video mode, rendered after start_episode drew the episode's clip
+        assert self._green_screen is not None and self._clips is not None and self.clip_index is not None
         self._green_screen.upload(renderer)
         rgb = renderer.render()[0]
         keyed = green_screen_mask(rgb)[..., np.newaxis]

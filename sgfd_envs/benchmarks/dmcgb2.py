@@ -41,6 +41,7 @@ from sgfd_envs import domains
 from sgfd_envs.benchmarks.dmcgb import SceneColours
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
 from sgfd_envs.benchmarks.scene import TextureSlot, camera_frame_override, object_id, rotation_x, rotation_y, rotation_z
+from sgfd_envs.morphology import find_child
 from sgfd_envs.rendering import CameraRenderer
 
 NAME = "DMCGB2"
@@ -138,7 +139,7 @@ def load_with_projector(domain: str, task: str, texture_side: int) -> control.En
     )  # fmt: skip
     size, pos, euler = PROJECTORS[domain]
     ET.SubElement(
-        root.find("worldbody"), "site", name=_PROJECTOR, type="box", material=_PROJECTOR,
+        find_child(root, "worldbody"), "site", name=_PROJECTOR, type="box", material=_PROJECTOR,
         size=" ".join(map(str, size)), pos=" ".join(map(str, pos)), euler=" ".join(map(str, euler)),
     )  # fmt: skip
     # As sgfd_envs.domains.cheetah does: MuJoCo deprecates <compiler settotalmass> (a warning at every
@@ -183,8 +184,7 @@ class DMCGB2Distraction:
         self._shifts = (
             [rotation_y(a) @ rotation_x(b) for a, b in shift_angles(domain, difficulty)] if "shift" in parts else None
         )
-        self._colours = colour_set(difficulty, data_dir) if "color" in parts else None
-        self._scene_colours = SceneColours(physics) if "color" in parts else None
+        self._scene_colours = SceneColours(physics, colour_set(difficulty, data_dir)) if "color" in parts else None
         self._clips: ClipBank | None = None
         if "video" in parts:
             side = projector_texture_side(image_size, render)
@@ -217,9 +217,9 @@ class DMCGB2Distraction:
             self.camera_rotation = self.camera_rotation @ self._shifts[self.pose_index]
         if self._rotations is not None:
             self.camera_rotation = self.camera_rotation @ self._rotations[self.pose_index]
-        if self._colours is not None:
-            self.colour_index = (self._start + episode) % len(self._colours)
-            self._scene_colours.apply(self._colours[self.colour_index])
+        if self._scene_colours is not None:
+            self.colour_index = (self._start + episode) % len(self._scene_colours)
+            self._scene_colours.apply(self.colour_index)
         if self._clips is not None:
             self.clip_index = (self._start + episode + 1) % len(self._clips)
 
@@ -246,8 +246,8 @@ class DMCGB2Distraction:
         self.camera_rotation = np.array(state["camera_rotation"])
         self.pose_index, self.colour_index = state["pose_index"], state["colour_index"]
         self.clip_index = state["clip_index"]
-        if self.colour_index is not None:
-            self._scene_colours.apply(self._colours[self.colour_index])
+        if self._scene_colours is not None and self.colour_index is not None:
+            self._scene_colours.apply(self.colour_index)
         self._shown_frame = None  # the screen texture is written again at the next render
 
     def screen_position(self) -> np.ndarray | None:
@@ -271,6 +271,7 @@ class DMCGB2Distraction:
         if self._scene_colours is not None:
             self._scene_colours.upload(renderer)
         if self._clips is not None:
+            assert self.clip_index is not None  # start_episode drew the episode's clip
             if self._shown_frame != (self.clip_index, agent_step):
                 side = self._screen_side
                 self._screen.write(self._clips.clip(self.clip_index).frame(agent_step), (side, side))

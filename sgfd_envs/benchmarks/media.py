@@ -16,7 +16,7 @@ import io
 import pickle
 import xml.etree.ElementTree as ET
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import ClassVar
 
@@ -123,6 +123,8 @@ def default_colours() -> dict[str, np.ndarray]:
     grid = suite_texture_attributes("grid")
     materials = ET.fromstring(common.ASSETS["./common/materials.xml"])
     self_rgba = next(m for m in materials.iter("material") if m.get("name") == "self").get("rgba")
+    if self_rgba is None:
+        raise KeyError("dm_control's materials.xml gives its 'self' material no rgba")
     return {
         "grid_rgb1": _rgb(grid["rgb1"]),
         "grid_rgb2": _rgb(grid["rgb2"]),
@@ -194,9 +196,9 @@ class VideoClip:
         self._exhausted = False
 
     def _decode_until(self, index: int) -> None:
-        if self._capture is None and not self._exhausted:
-            self._capture = cv2.VideoCapture(self.path)
         while len(self._frames) <= index and not self._exhausted:
+            if self._capture is None:
+                self._capture = cv2.VideoCapture(self.path)
             ok, frame = self._capture.read()
             if not ok:
                 self._exhausted = True
@@ -288,7 +290,7 @@ class ClipBank:
     :param open_clip: opens clip i
     """
 
-    def __init__(self, names: Sequence[str], open_clip) -> None:
+    def __init__(self, names: Sequence[str], open_clip: Callable[[int], BackgroundSource]) -> None:
         self.names = tuple(names)
         self._open = open_clip
         self._index: int | None = None
@@ -299,7 +301,7 @@ class ClipBank:
 
     def clip(self, index: int) -> BackgroundSource:
         """Clip ``index`` (the previous one is released)."""
-        if index != self._index:
+        if self._clip is None or index != self._index:
             self._clip = self._open(index)
             self._index = index
         return self._clip

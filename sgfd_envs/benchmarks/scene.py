@@ -47,7 +47,7 @@ def suite_texture_attributes(name: str) -> dict[str, str]:
     return dict(element.attrib)
 
 
-def rgb_attribute(rgb: Sequence[float]) -> str:
+def rgb_attribute(rgb: Sequence[float] | np.ndarray) -> str:
     """An MJCF colour attribute from three floats in [0, 1]."""
     return " ".join(f"{float(c):.17g}" for c in rgb)
 

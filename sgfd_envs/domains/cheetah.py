@@ -9,7 +9,15 @@ from dm_control.rl import control
 from dm_control.suite import cheetah as dm_cheetah
 from dm_control.suite import common
 
-from sgfd_envs.morphology import Morphology, find_named, get_floats, read_suite_model, set_floats, to_xml_string
+from sgfd_envs.morphology import (
+    Morphology,
+    find_child,
+    find_named,
+    get_floats,
+    read_suite_model,
+    set_floats,
+    to_xml_string,
+)
 
 # dm_control's cheetah has no control_timestep: one agent action per 0.01 s physics step.
 CONTROL_TIMESTEP = 0.01
@@ -55,7 +63,7 @@ def load(task: str, scale: float = 1.0) -> control.Environment:
     root = _scaled_model(scale)
     # MuJoCo deprecates <compiler settotalmass> and logs a warning at every compile; rescaling the
     # compiled model instead gives the same model arrays (tested against dm_control's cheetah).
-    total_mass = float(root.find("compiler").attrib.pop("settotalmass"))
+    total_mass = float(find_child(root, "compiler").attrib.pop("settotalmass"))
     physics = dm_cheetah.Physics.from_xml_string(to_xml_string(root), common.ASSETS)
     mujoco.mj_setTotalmass(physics.model.ptr, total_mass)
     mujoco.mj_setConst(physics.model.ptr, physics.data.ptr)
