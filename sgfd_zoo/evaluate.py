@@ -66,6 +66,7 @@ def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[st
         env = sgfd_envs.make_domain_vec_env(run.env_id, seed=seed, **env_kwargs)
         env = wrap_like_training(env, run.frame_stack)
         rewards, _ = evaluate_policy(model, env, n_eval_episodes=n_episodes, return_episode_rewards=True)
+        assert isinstance(rewards, list)  # return_episode_rewards: one return per episode
         env.close()
         rows.append(
             {
@@ -173,9 +174,9 @@ def render_benchmark_tables(results: list[dict[str, Any]], reps: int = 2000, see
                 matrix.append(cells)
             aggregate_cells = ["**IQM**"]
             for mode in modes:
-                row = iqm.get((mode, algo))
+                cell = iqm.get((mode, algo))
                 aggregate_cells.append(
-                    "–" if row is None else f"{row['value']:.3f} [{row['ci_low']:.3f}, {row['ci_high']:.3f}]"
+                    "–" if cell is None else f"{cell['value']:.3f} [{cell['ci_low']:.3f}, {cell['ci_high']:.3f}]"
                 )
             matrix.append(aggregate_cells)
             counts = [len(values) for (a, _, _), values in by_cell.items() if a == algo]

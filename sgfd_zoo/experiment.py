@@ -16,7 +16,7 @@ from rl_zoo3.utils import ALGOS, get_class_by_name
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import ProgressBarCallback
 from stable_baselines3.common.preprocessing import is_image_space, is_image_space_channels_first
-from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecTransposeImage
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecFrameStack, VecTransposeImage
 
 import sgfd_envs
 from sb3_sgfd.common.validation import RefusedTransition
@@ -200,9 +200,9 @@ class SGFDExperimentManager(ExperimentManager):
             for warning in interval_warnings(self.n_timesteps, eval_freq, save_freq):
                 print(warning, file=sys.stderr)
         # After the checks: a configuration that is refused gets its one line only.
-        warning = classifier_start_warning(self.algo, processed, self.n_timesteps)
-        if warning is not None:
-            print(f"warning: {warning}", file=sys.stderr)
+        too_short = classifier_start_warning(self.algo, processed, self.n_timesteps)
+        if too_short is not None:
+            print(f"warning: {too_short}", file=sys.stderr)
         return processed, env_wrapper, callbacks, vec_env_wrapper
 
     def _add_overlay_images(self, hyperparams: dict[str, Any]) -> None:
@@ -230,7 +230,7 @@ class SGFDExperimentManager(ExperimentManager):
                 split=split,
                 n_envs=n_envs,
                 seed=self.seed + (10_000 if eval_env else 0),
-                vec_env_cls=cast(type[VecEnv], self.vec_env_class),
+                vec_env_cls=cast(type[DummyVecEnv] | type[SubprocVecEnv], self.vec_env_class),
                 **env_kwargs,
             )
         return wrap_like_training(env, self.frame_stack, self._maybe_normalize if self.normalize else None, eval_env)

@@ -96,7 +96,7 @@ class RunRecord(NamedRun):
                         values.append(float(row[key]))
         return np.array(steps, dtype=np.int64), np.array(values, dtype=np.float64)
 
-    def write(self, run: RunFolder, final_rows: list[dict[str, Any]], diagnostics: Callable[[Path], None]) -> None:
+    def write(self, run: RunFolder, final_rows: list[dict[str, Any]], diagnostics: Callable[[Path], object]) -> None:
         """This record of the finished ``run``: its files, then its final evaluation (last: a record with
         one is whole).
 

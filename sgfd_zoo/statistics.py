@@ -136,7 +136,7 @@ def aggregate(
             )
             for other in pairs:
                 low, high = np.asarray(probability_cis[other]).reshape(-1)[:2]
-                rows.append(_row(split, other, f"{IMPROVEMENT}_of_{best}", probabilities[other], low, high))
+                rows.append(_row(split, other, f"{IMPROVEMENT}_of_{best}", float(probabilities[other]), low, high))
     return rows
 
 

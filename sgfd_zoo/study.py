@@ -26,8 +26,10 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import shlex
 import sys
+from collections.abc import Sequence
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -104,7 +106,7 @@ def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[
         if str(run.path) not in rows_by_run:
             continue  # not evaluated: recorded by the next export
         record = record_of(run, out / "runs", recorded)
-        record.write(run, rows_by_run[str(run.path)], lambda path, run=run: write_diagnostics(run, path))
+        record.write(run, rows_by_run[str(run.path)], functools.partial(write_diagnostics, run))
         recorded[(run.algo, run.env_id, run.seed)] = record
     records = study_records(spec, out)
     results = [{**row, "run": str(record.path.relative_to(out))} for record in records for row in record.final_rows]
@@ -163,14 +165,15 @@ def write_diagnostics(run: RunFolder, path: Path) -> Path:
     return path
 
 
-def diagnostics_figures(runs: list[RunFolder | RunRecord], out: Path) -> list[Path]:
+def diagnostics_figures(runs: Sequence[RunFolder | RunRecord], out: Path) -> list[Path]:
     """Per env: the classifier's accuracy, the weights' ESS and their range over training, per algorithm
     (mean over seeds, and each seed faintly)."""
     from matplotlib.figure import Figure
 
     from sgfd_zoo.plot import mean_and_band
 
-    panels = (("sgfd/classifier_accuracy", "classifier accuracy"), ("sgfd/weight_ess", "weights' ESS / n"))
+    panels: tuple[tuple[str, str], ...] = (("sgfd/classifier_accuracy", "classifier accuracy"),)
+    panels += (("sgfd/weight_ess", "weights' ESS / n"),)
     panels += (("sgfd/weight_max", "largest weight"), ("sgfd/weight_min", "smallest weight"))
     panels += ((TOP_SALIENCY, "top-saliency feature (each seed)"),)
     written = []
@@ -184,9 +187,9 @@ def diagnostics_figures(runs: list[RunFolder | RunRecord], out: Path) -> list[Pa
                 curves = [curve for curve in curves if len(curve[0]) > 0]
                 if not curves:
                     continue
-                legend = f"{column_name(algo)} ({len(curves)})"
+                legend: str | None = f"{column_name(algo)} ({len(curves)})"
                 if key == TOP_SALIENCY:  # an index: a mean over seeds would name no feature
-                    color = None
+                    color: str | None = None
                     for run_steps, values in curves:
                         (dots,) = ax.plot(run_steps, values, ".", color=color, alpha=0.5, label=legend)
                         color, legend = dots.get_color(), None
@@ -211,7 +214,7 @@ def diagnostics_figures(runs: list[RunFolder | RunRecord], out: Path) -> list[Pa
     return written
 
 
-def diagnostics_summary(runs: list[RunFolder | RunRecord]) -> str:
+def diagnostics_summary(runs: Sequence[RunFolder | RunRecord]) -> str:
     """Markdown, per env and algorithm (mean ± std over seeds): when the classifier first reached its threshold,
     the weights' ESS and range once it had, the feature most often the most salient (and in what share of all
     the seeds' logs), and the returns of the last evaluation during training (``--eval-episodes`` episodes, not
@@ -225,7 +228,10 @@ def diagnostics_summary(runs: list[RunFolder | RunRecord]) -> str:
     for env_id in sorted({run.env_id for run in runs}):
         for algo in sorted({run.algo for run in runs if run.env_id == env_id}, key=algo_sort_key):
             group = [run for run in runs if run.env_id == env_id and run.algo == algo]
-            ready, ess, low, high = [], [], [], []
+            ready: list[float] = []
+            ess: list[float] = []
+            low: list[float] = []
+            high: list[float] = []
             for run in group:
                 steps, accuracy = run.log("sgfd/classifier_accuracy")
                 threshold = run.accuracy_threshold

@@ -139,7 +139,7 @@ def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
 EXIT_CLUSTER_LOST = 75
 
 
-def main(argv: list[str], recorded: Collection[tuple[str, str, int]] = (), rerun: str | None = None) -> int:
+def main(argv: list[str], recorded: Collection[tuple[str, str, int | None]] = (), rerun: str | None = None) -> int:
     """``sgfd-zoo sweep``. Exits 0 when every run finished, 1 when one failed or was refused (another process
     writes it), 75 when the Ray cluster went away, 130 on Ctrl-C; each but 0 with a summary and the command that
     continues the sweep.

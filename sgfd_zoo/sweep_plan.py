@@ -55,7 +55,7 @@ def plan(
     algos: Sequence[str],
     env_ids: Sequence[str],
     seeds: Sequence[int],
-    recorded: Collection[tuple[str, str, int]] = (),
+    recorded: Collection[tuple[str, str, int | None]] = (),
 ) -> tuple[list[Job], list[tuple[str, str, int]], list[str]]:
     """
     The runs still to train (new or to resume), the (algo, env, seed) already finished in ``folder`` or
