@@ -22,22 +22,23 @@ from sgfd_envs.registry import BENCHMARK_KINDS, benchmark_of
 from sgfd_zoo.algos import algo_sort_key, column_name
 from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id, train_command
 from sgfd_zoo.runs import RunFolder, find_runs
-from sgfd_zoo.statistics import MAX_RETURN, aggregate, read_csv, score_rows, split_sort_key, write_csv, write_statistics
-
-RESULT_FIELDS = ["algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes", "stand_in", "run"]
-# How a table marks a split played on a stand-in, and the note under it.
-STAND_IN_MARK = " (stand-in)"
-STAND_IN_NOTE = (
-    "\nMarked (stand-in): played on sgfd_envs' procedural stand-ins of the benchmark's data (no data_dir / "
-    "background_dir given), not the benchmark's numbers.\n"
+from sgfd_zoo.statistics import (
+    MAX_RETURN,
+    STAND_IN_MARK,
+    STAND_IN_NOTE,
+    aggregate,
+    on_stand_in,
+    read_csv,
+    score_rows,
+    split_sort_key,
+    write_csv,
+    write_statistics,
 )
 
-
-def on_stand_in(row: dict[str, Any]) -> bool:
-    """Whether a result row was played on a stand-in (``stand_in`` as written, or read back from csv)."""
-    return str(row.get("stand_in", False)).lower() in ("true", "1")
+RESULT_FIELDS = ["algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes", "stand_in", "run"]
 
 
+# How a table marks a split played on a stand-in, and the note under it.
 def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[str, Any]]:
     """Mean and std of the episode return of ``run``'s final model on each split of its env.
 

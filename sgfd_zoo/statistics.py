@@ -12,7 +12,7 @@ from __future__ import annotations
 import csv
 import io
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -151,9 +151,24 @@ def _row(split: str, algo: str, metric: str, value: float, low: float, high: flo
     }
 
 
-def render_aggregate(rows: Sequence[dict[str, Any]], scores: Sequence[dict[str, Any]]) -> str:
+STAND_IN_MARK = " (stand-in)"
+STAND_IN_NOTE = (
+    "\nMarked (stand-in): played on sgfd_envs' procedural stand-ins of the benchmark's data (no data_dir / "
+    "background_dir given), not the benchmark's numbers.\n"
+)
+
+
+def on_stand_in(row: dict[str, Any]) -> bool:
+    """Whether a result row was played on a stand-in (``stand_in`` as written, or read back from csv)."""
+    return str(row.get("stand_in", False)).lower() in ("true", "1")
+
+
+def render_aggregate(
+    rows: Sequence[dict[str, Any]], scores: Sequence[dict[str, Any]], stand_in_splits: Collection[str] = ()
+) -> str:
     """Markdown: per split a table of algorithms with IQM, mean, optimality gap and P(reference > algo), each
-    ``value [ci_low, ci_high]``, and how many runs and tasks it rests on."""
+    ``value [ci_low, ci_high]``, and how many runs and tasks it rests on; a split played on a stand-in of a
+    benchmark's data (``stand_in_splits``) is marked so in its heading."""
     out = io.StringIO()
     for split in sorted({row["split"] for row in rows}, key=split_sort_key):
         matrices, tasks = score_matrices(scores, split)
@@ -168,8 +183,9 @@ def render_aggregate(rows: Sequence[dict[str, Any]], scores: Sequence[dict[str, 
                 metric = IMPROVEMENT
             cells[row["algo"]][metric] = f"{row['value']:.3f} [{row['ci_low']:.3f}, {row['ci_high']:.3f}]"
         runs = {algo: matrix.shape[0] for algo, matrix in matrices.items()}
+        mark = STAND_IN_MARK if split in stand_in_splits else ""
         out.write(
-            f"# {split}: normalised score (return / {MAX_RETURN:g}), {len(tasks)} task(s), "
+            f"# {split}{mark}: normalised score (return / {MAX_RETURN:g}), {len(tasks)} task(s), "
             f"95% stratified-bootstrap CIs\n\n"
         )
         improvement = f"P({column_name(reference)} > algo)" if reference else "P(improvement)"
@@ -180,6 +196,8 @@ def render_aggregate(rows: Sequence[dict[str, Any]], scores: Sequence[dict[str, 
             row_cells = [cells[algo].get(metric, "–") for metric in (*METRICS, IMPROVEMENT)]
             out.write(f"| {column_name(algo)} | {runs.get(algo, 0)} | {' | '.join(row_cells)} |\n")
         out.write("\n")
+    if set(stand_in_splits) & {row["split"] for row in rows}:
+        out.write(STAND_IN_NOTE)
     return out.getvalue()
 
 
@@ -325,7 +343,7 @@ def write_statistics(
     """
     scores = score_rows(results)
     rows = aggregate(scores, reference, reps, seed)
-    markdown = render_aggregate(rows, scores)
+    markdown = render_aggregate(rows, scores, {row["split"] for row in results if on_stand_in(row)})
     files = [write_csv(scores, folder / "scores.csv", SCORE_FIELDS)]
     files.append(write_csv(rows, folder / "aggregate.csv", AGGREGATE_FIELDS))
     (folder / "aggregate.md").write_text(markdown)

@@ -132,3 +132,12 @@ def test_benchmark_layout_is_tasks_by_modes_with_the_iqm_of_each_mode():
     assert low <= float(value) <= high and low < high
     assert "DMCGB: DR" in text and "SGFD" not in text
     assert render_benchmark_tables(results({"sac": {"SGFD/walker-walk-v0": [10.0]}}, split="test")) == ""
+
+
+def test_a_split_played_on_a_stand_in_is_marked_in_the_aggregate_tables():
+    scores = score_rows(results({"sgfd_sac": {TASKS[0]: [100.0, 200.0]}, "sac": {TASKS[0]: [300.0, 400.0]}}))
+    rows = aggregate(scores, reps=200)
+    split = rows[0]["split"]
+    marked = render_aggregate(rows, scores, stand_in_splits={split})
+    assert f"# {split} (stand-in):" in marked and "not the benchmark's numbers" in marked
+    assert "(stand-in)" not in render_aggregate(rows, scores)
