@@ -19,7 +19,7 @@ from sgfd_zoo.algos import SGFD_ALGOS, is_sgfd
 from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id
 
 # --short: a run length and final evaluation episodes for a job of a few minutes.
-SHORT_STEPS = 6_000
+SHORT_STEPS = 4_000
 SHORT_EVAL_EPISODES = 4
 CURVE_POINTS = 4  # evaluations during each run, the last at its end
 # Episodes per split at each of them: one per training domain (the final evaluation, for the tables, has more).
