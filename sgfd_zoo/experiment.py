@@ -199,10 +199,6 @@ class SGFDExperimentManager(ExperimentManager):
             eval_freq = None if self.default_eval_freq else self.eval_freq
             for warning in interval_warnings(self.n_timesteps, eval_freq, save_freq):
                 print(warning, file=sys.stderr)
-        # After the checks: a configuration that is refused gets its one line only.
-        too_short = classifier_start_warning(self.algo, processed, self.n_timesteps)
-        if too_short is not None:
-            print(f"warning: {too_short}", file=sys.stderr)
         return processed, env_wrapper, callbacks, vec_env_wrapper
 
     def _add_overlay_images(self, hyperparams: dict[str, Any]) -> None:
@@ -285,6 +281,10 @@ class SGFDExperimentManager(ExperimentManager):
         unprocessed, saved_hyperparams = self.read_hyperparameters()
         hyperparams, self.env_wrapper, self.callbacks, self.vec_env_wrapper = self._preprocess_hyperparams(unprocessed)
         self._claim_run_folder()
+        # Once the run is sure to start: a configuration or folder that is refused gets its one line only.
+        too_short = classifier_start_warning(self.algo, hyperparams, self.n_timesteps)
+        if too_short is not None:
+            print(f"warning: {too_short}", file=sys.stderr)
         if self.continue_training:
             return super().setup_experiment()
         env = self.create_envs(self.n_envs)

@@ -53,7 +53,7 @@ def test_the_quick_jobs_length_moves_sgfds_classifier_start_in_proportion():
     assert quick.quick_setting("sgfd_sac", ENV_ID, "classifier_start") == 4000
     assert quick.quick_setting("sgfd_sac", ENV_ID, "n_timesteps") == 20000
     assert quick.scaled_classifier_start(["sgfd_sac", "sac"], ENV_ID, 3000) == 600
-    assert quick.scaled_classifier_start(["sgfd_sac_official", "sac"], ENV_ID, quick.SHORT_STEPS) == 1200
+    assert quick.scaled_classifier_start(["sgfd_sac_official", "sac"], ENV_ID, quick.SHORT_STEPS) == 800
     assert quick.scaled_classifier_start(["sgfd_sac", "sac"], ENV_ID, 20000) is None  # the configuration's own
     assert quick.scaled_classifier_start(["sac"], ENV_ID, 3000) is None
 
