@@ -386,8 +386,6 @@ class DCSDistraction:
     :param interpolation: OpenCV interpolation closest to the benchmark's resize of a DAVIS frame
     """
 
-    hide = "nothing"
-
     def __init__(
         self,
         physics: Physics,
@@ -476,4 +474,4 @@ class DCSDistraction:
         if self.background is not None:
             self.background.upload(renderer)
         overrides = self.camera.overrides() if self.camera is not None else []
-        return renderer.render(overrides)[0]
+        return renderer.render(overrides)

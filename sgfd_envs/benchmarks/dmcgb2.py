@@ -165,8 +165,6 @@ class DMCGB2Distraction:
     :param render: ``"benchmark"`` or ``"fast"``: the screen texture's side and resize (module docstring)
     """
 
-    hide = "nothing"
-
     def __init__(
         self,
         physics: Physics,
@@ -278,4 +276,4 @@ class DMCGB2Distraction:
                 self._shown_frame = (self.clip_index, agent_step)
             self._screen.upload_if_changed(renderer)
             overrides.append((self._physics.data.site_xpos, self._screen_site, self.screen_position()))
-        return renderer.render(overrides)[0]
+        return renderer.render(overrides)
