@@ -277,11 +277,13 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._background is not None:
             self._background_phase = float(self.np_random.random())
         if self._distraction is not None:
-            reseeded = seed is not None or self._distraction_rng is None
-            if reseeded or self._distraction_rng is None:
+            # A seed, or the first reset, (re)starts the distraction's generator and its sequences.
+            if seed is not None or self._distraction_rng is None:
                 entropy = None if seed is None else [int(seed), DISTRACTION_SEED_STREAM]
                 self._distraction_rng = np.random.default_rng(entropy)
-            self._distraction.start_episode(self._distraction_rng, reseeded)
+                self._distraction.start_episode(self._distraction_rng, reseeded=True)
+            else:
+                self._distraction.start_episode(self._distraction_rng, reseeded=False)
         return self._observation(time_step.observation), self._info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
