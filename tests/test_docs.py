@@ -126,3 +126,17 @@ def test_the_agents_pages_reading_defaults_are_sgfd_settings() -> None:
     assert {"classifier_start", "classifier_hidden_dim", "n_rff", "reweight_momentum", "reweight_max_step"} <= set(
         listed
     )
+
+
+def test_the_demo_draws_the_tasks_asked_for_and_names_a_domain() -> None:
+    from sgfd_envs.demo import benchmark_observations, observe
+
+    rows = benchmark_observations("DCS", steps=1, image_size=16, tasks=("reacher-easy",))
+    assert [[(task, split) for task, split, _ in row] for row in rows] == [
+        [("reacher-easy", split) for split in ("train", "easy", "medium", "hard")]
+    ]
+    assert all(pixels.shape == (16, 16, 3) for _, _, pixels in rows[0])
+    with pytest.raises(ValueError, match=r"tasks must be tasks of DCS .*got \['walker-run'\]"):
+        benchmark_observations("DCS", tasks=("walker-walk", "walker-run"))
+    _, caption = observe("SGFD/MT-walker-walk-v0", "train", steps=1, image_size=16, domain=2)
+    assert caption.startswith("train 2 s4 ")
