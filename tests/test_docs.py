@@ -140,3 +140,19 @@ def test_the_demo_draws_the_tasks_asked_for_and_names_a_domain() -> None:
         benchmark_observations("DCS", tasks=("walker-walk", "walker-run"))
     _, caption = observe("SGFD/MT-walker-walk-v0", "train", steps=1, image_size=16, domain=2)
     assert caption.startswith("train 2 s4 ")
+
+
+def test_the_sites_front_page_shows_the_readmes_intro() -> None:
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("docs_hooks", DOCS / "hooks.py")
+    assert spec is not None and spec.loader is not None
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    page = hooks.on_page_markdown((DOCS / "index.md").read_text())
+    assert "<!-- README:" not in page
+    readme = (REPO / "README.md").read_text()
+    first = next(line for line in readme.splitlines() if line.startswith("Saliency-Guided Features Decorrelation"))
+    assert first in page and "](envs-overview.png)" in page and "](docs/" not in page
+    with pytest.raises(ValueError, match=r"name must be a part of README\.md"):
+        hooks.readme_part("outro", readme)
