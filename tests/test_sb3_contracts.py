@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
+from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import NStepReplayBuffer
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack, VecTransposeImage
 
 import sgfd_envs
-from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, DomainReplayBuffer
+from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, DomainReplayBuffer, EncoderSAC, MlpPolicy
 from sb3_sgfd.common.buffers import DomainDictReplayBuffer
 
 TINY = dict(learning_starts=30, batch_size=8, buffer_size=300, seed=0)
@@ -150,6 +151,23 @@ def test_n_steps_gives_sb3s_n_step_returns():
     # some returns stop early, at an episode's end or the newest transition
     discounts = ours.discounts.numpy().astype(np.float64).round(4)
     assert np.isin(discounts, [0.9, 0.81, 0.729]).all() and (discounts > 0.8).any()
+
+
+def test_n_steps_takes_the_same_steps_as_sb3_sac_with_n_steps_bit_for_bit():
+    # episodes of 20 steps, so that some returns stop at an episode's end
+    def env():
+        return make_vec_env("Pendulum-v1", n_envs=2, seed=0, env_kwargs=dict(max_episode_steps=20))
+
+    common = dict(TINY, policy_kwargs=SMALL_NET, learning_rate=1e-3, tau=0.01)  # EncoderSAC's lr and tau
+    sac = SAC(MlpPolicy, env(), n_steps=3, **common).learn(150)
+    ours = EncoderSAC("MlpPolicy", env(), n_steps=3, **common).learn(150)
+    assert isinstance(sac.replay_buffer, NStepReplayBuffer) and ours.replay_buffer.n_steps == 3
+    assert ours._n_updates == sac._n_updates > 0
+    for (name, expected), (_, got) in zip(
+        sac.policy.state_dict().items(), ours.policy.state_dict().items(), strict=True
+    ):
+        assert th.equal(expected, got), name
+    assert th.equal(sac.log_ent_coef, ours.log_ent_coef)
 
 
 def test_sgfd_sac_with_n_steps_learns_on_n_step_returns():
