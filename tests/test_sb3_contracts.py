@@ -5,13 +5,15 @@ train with MultiInputPolicy where the agent reads them, and are refused in one l
 
 from __future__ import annotations
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
 from stable_baselines3 import SAC
-from stable_baselines3.common.buffers import NStepReplayBuffer
+from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack, VecTransposeImage
 
@@ -169,6 +171,16 @@ def test_n_steps_takes_the_same_steps_as_sb3_sac_with_n_steps_bit_for_bit():
     ):
         assert th.equal(expected, got), name
     assert th.equal(sac.log_ent_coef, ours.log_ent_coef)
+
+
+def test_n_steps_with_a_buffer_class_that_ignores_them_warns_as_sb3_does():
+    with pytest.warns(UserWarning, match=r"`n_steps=3` is ignored because a custom `replay_buffer_class`"):
+        model = EncoderSAC("MlpPolicy", pendulum(1), replay_buffer_class=ReplayBuffer, n_steps=3, **TINY)
+    assert type(model.replay_buffer) is ReplayBuffer
+    # the domain buffer takes them: no such warning
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message="`n_steps=")
+        assert EncoderSAC("MlpPolicy", pendulum(1), n_steps=3, **TINY).replay_buffer.n_steps == 3
 
 
 def test_sgfd_sac_with_n_steps_learns_on_n_step_returns():
