@@ -4,7 +4,6 @@ space)."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import optuna
@@ -13,18 +12,6 @@ from rl_zoo3.utils import ALGOS
 
 from sb3_sgfd import SGFD_SAC
 from sgfd_zoo.algos import SGFD_ALGOS
-
-HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
-
-
-def hyperparams_file(algo: str, quick: bool = False) -> Path:
-    """The zoo's yaml for ``algo``: paper scale, or the quick configuration for a laptop-size run."""
-    if algo not in SGFD_ALGOS:
-        return HYPERPARAMS_DIR / ("quick" if quick else "") / f"{algo}.yml"
-    entry = SGFD_ALGOS[algo]
-    if quick:
-        return HYPERPARAMS_DIR / "quick" / f"{entry.quick_hyperparams or entry.hyperparams}.yml"
-    return HYPERPARAMS_DIR / f"{entry.hyperparams}.yml"
 
 
 def register_algorithms() -> None:
