@@ -99,20 +99,21 @@ def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any], where: str = "env_
 
 def rl_zoo3_schedule_start(key: str, value: Any) -> Any:
     """The value a hyperparameter starts at, where rl-zoo3 reads a string as a schedule (``lin_0.001``: linear
-    from 0.001 to 0); a ZooError for any other string. Other values are returned as they are.
+    from 0.001 to 0), read by rl-zoo3's own parser; a ZooError for a string it cannot read. Other values are
+    returned as they are.
 
-    :param key: e.g. ``learning_rate``
+    :param key: a key rl-zoo3 reads schedules of, e.g. ``learning_rate``
     :param value: its value in the configuration
     """
     if not isinstance(value, str):
         return value
-    kind, _, start = value.partition("_")
     try:
-        if kind == "lin":
-            return float(start)
-    except ValueError:
-        pass
-    raise ZooError(f"{key} must be a number, or a schedule 'lin_<start>' (linear from <start> to 0), got {value!r}")
+        schedule = rl_zoo3.exp_manager.ExperimentManager._preprocess_schedules({key: value})[key]
+        return schedule.initial_value
+    except (ValueError, AttributeError):  # AttributeError: a key rl-zoo3 reads no schedule of
+        raise ZooError(
+            f"{key} must be a number, or a schedule 'lin_<start>' (linear from <start> to 0), got {value!r}"
+        ) from None
 
 
 def check_zoo_values(hyperparams: dict[str, Any], steps_given: bool) -> None:
@@ -170,8 +171,6 @@ def check_algorithm_values(algo_class: type, hyperparams: dict[str, Any]) -> Non
     values = {key: value for key, value in hyperparams.items() if key not in ZOO_KEYS}
     if "learning_rate" in values:
         values["learning_rate"] = rl_zoo3_schedule_start("learning_rate", values["learning_rate"])
-    if isinstance(values.get("train_freq"), list):  # as rl-zoo3 passes it
-        values["train_freq"] = tuple(values["train_freq"])
     with zoo_error():
         check_hyperparameters(algo_class, values)
 
