@@ -4,7 +4,7 @@ visual-RL agents of the paper's tables (DBC, AMBS, TED, SGQN) on one SAC trainin
 One folder per algorithm (``sgfd/``, ``ambs/``, ``dbc/``, ``ted/``, ``sgqn/``: the algorithm, its policy if it has
 one, its math), and what they share in ``common/``."""
 
-from pathlib import Path
+from importlib import metadata
 
 from sb3_sgfd import _legacy
 from sb3_sgfd.ambs import AMBS, AMBSPolicy
@@ -25,7 +25,9 @@ from sb3_sgfd.ted import TED
 
 _legacy.install()
 
-__version__ = (Path(__file__).parent / "version.txt").read_text().strip()
+# The installed distribution's version, which pip took from sgfd_envs/version.txt (the one file both distributions
+# read), so an install and the file cannot disagree.
+__version__ = metadata.version("sb3-sgfd")
 
 __all__ = [
     "AMBS",
