@@ -5,6 +5,7 @@ One folder per algorithm (``sgfd/``, ``ambs/``, ``dbc/``, ``ted/``, ``sgqn/``: t
 one, its math), and what they share in ``common/``."""
 
 from importlib import metadata
+from pathlib import Path
 
 from sb3_sgfd import _legacy
 from sb3_sgfd.ambs import AMBS, AMBSPolicy
@@ -26,8 +27,12 @@ from sb3_sgfd.ted import TED
 _legacy.install()
 
 # The installed distribution's version, which pip took from sgfd_envs/version.txt (the one file both distributions
-# read), so an install and the file cannot disagree.
-__version__ = metadata.version("sb3-sgfd")
+# read), so an install and the file cannot disagree. A checkout used without installing it has no metadata: it
+# reads that same file beside the package.
+try:
+    __version__ = metadata.version("sb3-sgfd")
+except metadata.PackageNotFoundError:
+    __version__ = (Path(__file__).resolve().parents[1] / "sgfd_envs" / "version.txt").read_text().strip()
 
 __all__ = [
     "AMBS",
