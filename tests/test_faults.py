@@ -43,8 +43,9 @@ from stable_baselines3.common.save_util import load_from_pkl
 
 import sgfd_envs.dmc
 from sgfd_zoo import sweep, training
-from sgfd_zoo.checkpoints import read_index
+from sgfd_zoo.checkpoints import read_index, remove_checkpoint_files
 from sgfd_zoo.cli import main as zoo_main
+from sgfd_zoo.locks import LOCK_FILE, RunLock
 from sgfd_zoo.runs import FINISHED_MARKER, RunFolder
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
@@ -452,6 +453,33 @@ def test_signals_at_random_points_leave_a_finished_or_a_resumable_run(tmp_path: 
         code, _out, err = zoo(train_args(logs, *resume))
         assert code == 0, f"{where}: {err}"
         assert_finished(run, 400)
+
+
+KILLED_TAKING_THE_LOCK = """
+import os, signal, sys
+from pathlib import Path
+from sgfd_zoo.locks import RunLock
+os.link = lambda *_: os.kill(os.getpid(), signal.SIGKILL)  # killed between writing its lock file and linking it
+RunLock.acquire(Path(sys.argv[1]))
+"""
+
+
+def test_a_lock_file_left_by_a_process_killed_taking_the_lock_is_seen_and_removed_by_the_writer(
+    tmp_path: Path,
+) -> None:
+    run = tmp_path / "run"
+    run.mkdir()
+    killed = subprocess.run([sys.executable, "-c", KILLED_TAKING_THE_LOCK, str(run)], capture_output=True, timeout=120)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr.decode()[-2000:]
+    left = leftovers(run)
+    assert len(left) == 1 and left[0].endswith(f"-{LOCK_FILE}"), sorted(path.name for path in run.iterdir())
+
+    lock = RunLock.acquire(run)  # the next writer; its checkpoints remove what interrupted writes left
+    try:
+        assert remove_checkpoint_files(run, []) == left and leftovers(run) == []
+    finally:
+        lock.release()
+    assert list(run.iterdir()) == []
 
 
 # -- partial final models ------------------------------------------------------------------------------------
