@@ -153,8 +153,19 @@ def _read_lock_file(path: Path) -> LockHolder | None:
         return LockHolder("", -1, "an unknown host", None, heartbeat, heartbeat, "its lock file is unreadable")
 
 
+def live_holder(folder: Path) -> LockHolder | None:
+    """The live writer holding the lock of run folder ``folder`` now; None when it is free or its holder is gone."""
+    holder = read_holder(folder)
+    return holder if holder is not None and holder.gone() is None else None
+
+
 class RunLocked(ZooError):
     """Another process writes the run; the message names it and what to do."""
+
+    @staticmethod
+    def being_written(folder: Path, holder: LockHolder) -> str:
+        """E.g. ``logs/sac/X_1 is being written by pid 4242 on host node7 (...) since ..., heartbeat 12 s ago``."""
+        return f"{folder} is being written by {holder.describe()}"
 
 
 def _create(path: Path, content: str) -> bool:
@@ -256,8 +267,8 @@ class RunLock:
             reason = holder.gone()
             if reason is None:
                 raise RunLocked(
-                    f"{what}: {folder} is being written by {holder.describe()}; one writer at a time: wait for it, or "
-                    f"stop it (if it is gone, its lock is taken over once its heartbeat is {_age(STALE_SECONDS)} old)"
+                    f"{what}: {RunLocked.being_written(folder, holder)}; one writer at a time: wait for it, or stop it"
+                    f" (if it is gone, its lock is taken over once its heartbeat is {_age(STALE_SECONDS)} old)"
                 )
             if _take_over(path, holder):
                 print(f"warning: taking over the lock of {folder} from {holder.describe()}: {reason}", file=sys.stderr)

@@ -20,7 +20,7 @@ from typing import Any
 
 from sgfd_zoo import training
 from sgfd_zoo.arguments import TrainingStopped, ZooError
-from sgfd_zoo.locks import HEARTBEAT_SECONDS, STALE_SECONDS, read_holder
+from sgfd_zoo.locks import HEARTBEAT_SECONDS, STALE_SECONDS, live_holder
 from sgfd_zoo.progress import LiveView, ProgressBoard, progress_block, returns_text
 from sgfd_zoo.runs import NoUsableCheckpoint
 from sgfd_zoo.sweep_plan import Job
@@ -94,7 +94,7 @@ def _wait_for_lock(job: Job) -> None:
     """Until no live writer holds the run's lock, or for as long as a dead one's takes to go stale."""
     deadline = time.monotonic() + STALE_SECONDS + 2 * HEARTBEAT_SECONDS
     said = False
-    while (holder := read_holder(job.run_dir)) is not None and holder.gone() is None:
+    while (holder := live_holder(job.run_dir)) is not None:
         if time.monotonic() > deadline:
             return  # the train refuses it in one line
         if not said:

@@ -33,8 +33,9 @@ from sgfd_zoo.checkpoint_callback import ResumableCheckpointCallback
 from sgfd_zoo.checkpoints import read_index
 from sgfd_zoo.cli import main as zoo_main
 from sgfd_zoo.files import TMP_PREFIX, temporary_path
-from sgfd_zoo.locks import LOCK_FILE, RunLock, RunLocked, read_holder
+from sgfd_zoo.locks import LOCK_FILE, RunLock, RunLocked, live_holder, read_holder
 from sgfd_zoo.runs import STEPS_KEY, RunFolder, find_runs
+from sgfd_zoo.sweep_plan import Job, locked_runs
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 NAME = "SGFD-MT-walker-walk-v0"
@@ -187,6 +188,21 @@ def test_a_lock_from_another_host_is_refused_while_its_heartbeat_is_fresh_and_ta
     os.utime(tmp_path / LOCK_FILE, (time.time() - 3600, time.time() - 3600))
     RunLock.acquire(tmp_path).release()
     assert "its heartbeat is 60 min old" in capsys.readouterr().err
+
+
+def test_a_sweep_leaves_a_run_a_live_writer_holds_and_plans_one_whose_writer_is_gone(tmp_path: Path) -> None:
+    job = Job("sac", ENV_ID, 0, 1, tmp_path)
+    job.run_dir.mkdir(parents=True)
+    assert locked_runs([job]) == [] and live_holder(job.run_dir) is None  # no lock
+
+    write_lock(job.run_dir, "node-17", 4242, age=20)
+    assert live_holder(job.run_dir) == read_holder(job.run_dir)
+    [(locked, line)] = locked_runs([job])
+    assert locked == job and line.startswith(f"refused: {job.run_dir} is being written by pid 4242 on host node-17 (x)")
+    assert line.endswith(", heartbeat 20 s ago (one writer at a time)"), line
+
+    write_lock(job.run_dir, "node-17", 4242, age=3600)  # stale: the sweep's train takes it over
+    assert live_holder(job.run_dir) is None and locked_runs([job]) == []
 
 
 def test_the_heartbeat_renews_the_lock_and_a_writer_whose_lock_was_taken_over_stops_writing(
