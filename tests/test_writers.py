@@ -118,6 +118,29 @@ def test_runs_started_together_each_get_their_own_folder_seed_config_and_progres
         assert not list(run.path.rglob(f"{TMP_PREFIX}*"))
 
 
+def test_a_run_records_its_train_command_once_and_runs_of_earlier_versions_still_say_how_they_continue(
+    tmp_path: Path,
+) -> None:
+    run = RunFolder(tmp_path / "sac" / f"{NAME}_1")
+    argv = ["--algo", "sac", "--env", ENV_ID, "-params", "policy_kwargs:dict(net_arch=[32, 32])", "-f", "my logs"]
+    # A run of an earlier version: rl-zoo3's unquoted command line (a sweep's: Ray's worker's) and command.json.
+    run.config_dir.mkdir(parents=True)
+    (run.config_dir / "command.txt").write_text("/venv/bin/python /venv/bin/ray-worker.py --node 1")
+    (run.path / "command.json").write_text(json.dumps(argv))
+    assert run.train_argv() == argv
+
+    run.record_start({}, {}, [*argv, "--resume"], step=100)  # resumed by this version: one file, quoted
+    assert sorted(path.name for path in run.path.iterdir()) == [NAME]
+    assert (run.config_dir / "command.txt").read_text() == shlex.join(["sgfd-zoo", "train", *argv, "--resume"]) + "\n"
+    assert run.train_argv() == [*argv, "--resume"]
+
+    unknown = RunFolder(tmp_path / "sac" / f"{NAME}_2")  # started from Python: no command to record
+    unknown.record_start({}, {}, None, step=0)
+    assert not (unknown.config_dir / "command.txt").exists() and unknown.train_argv() is None
+    legacy = Path(__file__).parent / "data" / "legacy" / "0.1.0" / "train_folder" / "sgfd_sac" / f"{NAME}_1"
+    assert (legacy / NAME / "command.txt").exists() and RunFolder(legacy).train_argv() is None  # never recorded flags
+
+
 # -- a second writer ---------------------------------------------------------------------------------------
 
 
