@@ -178,8 +178,8 @@ def _create(path: Path, content: str) -> bool:
     tmp = temporary_path(path)
     try:
         tmp.write_text(content)
-        fsync(tmp)
         try:
+            fsync(tmp)
             os.link(tmp, path)
         except (FileExistsError, FileNotFoundError):  # FileNotFoundError: the writer removed the temporary file
             return False
