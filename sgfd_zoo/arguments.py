@@ -23,7 +23,7 @@ class TrainingStopped(ZooError):
     and the message says how to continue it.
 
     :param message: what happened, what is kept, what to type
-    :param exit_code: 130 for an interrupt (the shell's convention), 1 otherwise
+    :param exit_code: ``exit_codes.INTERRUPTED`` for an interrupt (the shell's 128 + SIGINT), 1 otherwise
     """
 
     label = "stopped"
