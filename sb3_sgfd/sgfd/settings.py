@@ -8,7 +8,7 @@ numbers). A new setting is a field here (with its line in the docstring) and a k
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import dataclass, fields
 from typing import Any, TypedDict
 
 from sb3_sgfd.common.validation import (
@@ -164,14 +164,6 @@ class SGFDSettings:
             given["reweight_memory"] = None
         defaults = _OFFICIAL if reading == "official" else {}
         return cls(reading=reading, **{**defaults, **given})
-
-    def changed(self, **settings: Any) -> SGFDSettings:
-        """A copy with ``settings`` changed (checked as when made)."""
-        return replace(self, **settings)
-
-    def as_dict(self) -> dict[str, Any]:
-        """The settings by name, ``reading`` included."""
-        return asdict(self)
 
     def solver_settings(self) -> SolverSettings:
         """The weight solver's keywords (both readings' solvers take them), in a new dict."""
