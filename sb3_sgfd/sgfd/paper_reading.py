@@ -64,7 +64,7 @@ class PaperWeighting(SampleWeighting):
         self.solver_settings = settings.solver_settings()
         self.seed = seed
         self.classifier = DomainClassifier(n_features, max(n_domains, 2), settings.classifier_hidden_dim).to(device)
-        # Fused: one kernel for all six parameters instead of a dozen small ops each (a fifth of a classifier step).
+        # Fused: one kernel for all six parameters instead of a dozen small ops each.
         self.classifier_optimizer = torch.optim.Adam(
             self.classifier.parameters(), lr=settings.classifier_lr, fused=True
         )
