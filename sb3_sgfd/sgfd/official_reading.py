@@ -237,8 +237,6 @@ class OfficialWeighting(SampleWeighting):
     ) -> None:
         super().__init__(n_features, n_domains)
         self.settings = settings
-        # the threshold in use: a benchmark or test pins the classifier's phase by moving it
-        self.accuracy_threshold = settings.accuracy_threshold
         self.solver_settings = settings.solver_settings()
         self.seed = seed
         self.classifier = OfficialClassifier(n_features, max(n_domains, 2), settings.classifier_hidden_dim).to(device)
@@ -257,7 +255,7 @@ class OfficialWeighting(SampleWeighting):
             and step.num_timesteps > self.settings.classifier_start
             and step.update_index % self.settings.classifier_interval == 0
         )
-        if classifier_round and bool(accuracy < self.accuracy_threshold):
+        if classifier_round and bool(accuracy < self.settings.accuracy_threshold):
             for _ in range(self.settings.classifier_iters):
                 fresh_z, fresh_domains = step.fresh_features(CLASSIFIER_BATCHES * len(z), False)
                 loss = F.cross_entropy(self.classifier.probabilities(fresh_z), fresh_domains)
