@@ -15,9 +15,9 @@ from sb3_sgfd.common.validation import (
     check_bool,
     check_choice,
     check_interval,
-    check_max_step,
     check_non_negative,
     check_non_negative_int,
+    check_optional_positive,
     check_positive,
     check_positive_int,
 )
@@ -128,7 +128,7 @@ class SGFDSettings:
         check_interval("saliency_smoothing", self.saliency_smoothing, 0.0, 1.0)
         if self.reweight_memory is not None:
             check_interval("reweight_memory", self.reweight_memory, 0.0, 1.0, high_open=True, also="False")
-        check_max_step(self.reweight_max_step, "reweight_max_step")
+        check_optional_positive("reweight_max_step", self.reweight_max_step)
         check_bool(
             use_rff=self.use_rff,
             use_saliency=self.use_saliency,
