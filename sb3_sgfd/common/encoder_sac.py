@@ -191,7 +191,8 @@ class EncoderSAC(DomainBufferMixin, SAC):
         representation_model = make_representation(self.representation, self.representation_kwargs)
         self._prepare_replay_buffer(representation_model)
         with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=N_STEPS_IGNORED_WARNING, category=UserWarning)
+            if self._buffer_takes_n_steps():
+                warnings.filterwarnings("ignore", message=N_STEPS_IGNORED_WARNING, category=UserWarning)
             super()._setup_model()
         if self.ent_coef_optimizer is not None and (self.ent_coef_lr is not None or self.ent_coef_beta != 0.9):
             lr = self.lr_schedule(1) if self.ent_coef_lr is None else self.ent_coef_lr
