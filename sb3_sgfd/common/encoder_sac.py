@@ -408,7 +408,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
     ) -> tuple[tuple[th.Tensor, ...], th.Tensor]:
         """``self.critic(observations, actions)``, as SB3's ContinuousCritic computes it (its encoder learning
         through it), and the encoder features it computed: the weights reuse them instead of encoding the
-        batch a second time (on pixels, a tenth of a step).
+        batch a second time (on pixels, the encoder is a large part of a step).
         """
         with th.set_grad_enabled(not self.critic.share_features_extractor):
             features = self.critic.extract_features(observations, self.critic.features_extractor)

@@ -394,16 +394,8 @@ def check_tensor(x: object, name: str, dim: int | None = None) -> None:
 
 def check_frames(channels: int, channels_per_frame: int, name: str) -> None:
     """Refuse a frame size that does not divide the ``channels`` of the stacked images ``name``."""
-    if isinstance(channels_per_frame, bool) or not isinstance(channels_per_frame, int) or channels_per_frame < 1:
-        raise ValueError(f"channels_per_frame must be an int >= 1, got {channels_per_frame!r}")
+    check_positive_int(channels_per_frame=channels_per_frame)
     if channels % channels_per_frame != 0:
         raise ValueError(
             f"the {channels} channels of {name} are not divisible by channels_per_frame={channels_per_frame}"
         )
-
-
-def positive_int(value: object, name: str) -> int:
-    """``value`` if it is an int >= 1; else refused, naming it ``name``."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
-    return value

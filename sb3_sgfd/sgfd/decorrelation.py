@@ -21,7 +21,9 @@ from sb3_sgfd.common.validation import (
     check_choice,
     check_interval,
     check_matrix,
+    check_non_negative_int,
     check_optional_positive,
+    check_positive_int,
     check_probs,
     check_weights,
 )
@@ -40,8 +42,7 @@ def random_fourier_features(z: Tensor, n_features: int = 5, generator: torch.Gen
     :return: tensor of shape (n, d, m)
     """
     check_matrix(z, "z", min_rows=2, finite=True)
-    if isinstance(n_features, bool) or not isinstance(n_features, int) or n_features < 1:
-        raise ValueError(f"n_features must be an int >= 1, got {n_features!r}")
+    check_positive_int(n_features=n_features)
     return _fourier_features(z, n_features, generator)
 
 
@@ -281,10 +282,8 @@ def learn_sample_weights(
     check_matrix(z, "z", min_rows=2, finite=True)
     check_probs(feature_probs, z.shape[1])
     check_choice("covariance", covariance, COVARIANCES)
-    if isinstance(n_rff, bool) or not isinstance(n_rff, int) or n_rff < 1:
-        raise ValueError(f"n_rff must be an int >= 1, got {n_rff!r}")
-    if isinstance(iters, bool) or not isinstance(iters, int) or iters < 0:
-        raise ValueError(f"iters must be an int >= 0, got {iters!r}")
+    check_positive_int(n_rff=n_rff)
+    check_non_negative_int(iters=iters)
     numbers = {"lr": lr, "momentum": momentum, "weight_decay": weight_decay, "ess_penalty": ess_penalty}
     for name, value in numbers.items():
         if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
