@@ -24,7 +24,6 @@ one row with the official reading's own p (guided backprop of its classifier, no
 from __future__ import annotations
 
 import argparse
-import inspect
 import statistics
 import sys
 import time
@@ -58,16 +57,9 @@ from sgfd_analysis.correlation import collect_states, standardised_sample, state
 from sgfd_analysis.correlation import train_domain_classifier as correlation_classifier
 
 N_BATCH, N_TRAIN, N_DOMAINS = 128, 8192, 4  # the memory rows use 40 of the training batches
-# The paper reading's solver settings (SGFD_SAC's defaults), for solve_weights, which has no defaults of its own.
-PAPER = SGFDSettings.paper()
-PAPER_SOLVER = {
-    "n_rff": PAPER.n_rff,
-    "iters": PAPER.reweight_iters,
-    "lr": PAPER.reweight_lr,
-    "momentum": PAPER.reweight_momentum,
-    "weight_decay": PAPER.reweight_weight_decay,
-    "ess_penalty": PAPER.reweight_ess_penalty,
-}
+# Each reading's solver settings, as SGFD_SAC runs them (solve_weights has no defaults of its own).
+PAPER_SOLVER = SGFDSettings.paper().solver_settings()
+OFFICIAL_SOLVER = SGFDSettings.official().solver_settings()
 
 
 def train_domain_classifier(
@@ -426,9 +418,8 @@ def timing_table() -> None:
     # The paper reading: one (d m x d m) covariance of the batch per step; the official one: 2 m separate (d x d)
     # covariances of the batch and its batch-sized memory per epoch, m the RFF functions of the calls timed below.
     # Exact solvers cannot do less, so this ratio is a floor.
-    official_rff = inspect.signature(solve_official_weights).parameters["n_rff"].default
     paper_macs = product_multiply_adds(N_BATCH, 1, d * PAPER_SOLVER["n_rff"], PAPER_SOLVER["iters"])
-    official_macs = product_multiply_adds(2 * N_BATCH, 2 * official_rff, d, SGFDSettings.official().reweight_iters)
+    official_macs = product_multiply_adds(2 * N_BATCH, 2 * OFFICIAL_SOLVER["n_rff"], d, OFFICIAL_SOLVER["iters"])
     z = torch.tanh(torch.randn(N_BATCH, d, generator=torch.Generator().manual_seed(0)))
     classifier = DomainClassifier(d, N_DOMAINS)
     probs = feature_probabilities(classifier, z)
@@ -455,7 +446,9 @@ def timing_table() -> None:
         )
         paper_ms = median_ms(lambda: solve_weights(z, probs, generator=generator, **PAPER_SOLVER))
         official_ms = median_ms(
-            lambda: solve_official_weights(z, probs, memory=memory, update_memory=False, generator=generator)
+            lambda: solve_official_weights(
+                z, probs, memory=memory, update_memory=False, generator=generator, **OFFICIAL_SOLVER
+            )
         )
         rows.append(["the paper reading's solve (its defaults, as SGFD_SAC runs it)", str(threads), f"{paper_ms:.2f}"])
         rows.append(

@@ -39,7 +39,7 @@ PAPER_UPDATES = 500_000
 #: The whole check's worst case, seconds: every part stopped at its limit, plus this script's own start.
 TOTAL_SECONDS = 8 * 60
 #: Each part's time limit on the GPU host, seconds.
-BUDGETS = {
+BUDGETS: dict[str, float] = {
     "cuda": 75,
     "overhead mlp": 40,
     "overhead cnn": 55,
@@ -52,7 +52,7 @@ BUDGETS = {
 OWN_SECONDS = 15
 #: The same parts at toy sizes on the CPU (the agents' overhead left out): ceilings for a busy CI machine (on an
 #: idle one the whole smoke run takes about 2 minutes).
-SMOKE_BUDGETS = {
+SMOKE_BUDGETS: dict[str, float] = {
     "cuda": 150,
     "overhead mlp cnn": 150,
     "throughput": 120,
@@ -184,11 +184,12 @@ def learning_rate_of(algo: str, env_id: str, seconds: float, smoke: bool) -> str
             if stop.start is None:
                 raise RuntimeError(f"no gradient step in the run (learning_starts {model.learning_starts})")
             rate = (model._n_updates - stop.first) / (time.perf_counter() - stop.start)
+            shape = "x".join(str(size) for size in model.observation_space.shape)
+            kind = f"{'quick' if smoke else 'paper scale'}, observations {shape}, batch {model.batch_size}"
             model.env.close()
         finally:
             manager.release_run_folder()
     hours = PAPER_UPDATES / rate / 3600
-    kind = "quick (states)" if smoke else "paper scale, 84x84, 3 frames, batch 128"
     return f"| {algo} on {env_id}, {kind}, {device} | ok | {rate:.1f} updates/s: a 500k-update run in {hours:.1f} h |"
 
 
@@ -204,7 +205,8 @@ class Table:
     """
 
     def __init__(self, path: Path | None, header: list[str]):
-        self.path, self.rows = path, []
+        self.path = path
+        self.rows: list[str] = []
         print("\n".join(header), flush=True)
         if path is not None:
             path.write_text("\n".join(header) + "\n")

@@ -22,8 +22,10 @@ methods are re-implemented from their code's description, on procedural frames o
 - DMC-GB ``distracting_cs`` (0.5): as DCS, but the walks move every second simulator step, and dm_control's pixel
   wrapper inside DMC-GB's dmc2gym renders after every simulator step besides dmc2gym's own render per agent step.
 
-That ours and theirs make the same pixels on the same state (all rows but the background one) is tested in
-``tests/test_benchmarks_pixels.py``; this script measures the cost.
+The benchmarks' per-frame methods (the green screen's HSV loop, DMC-GB2's screen write and torso follow, DCS's
+floor, sky write and camera pose) are ``bench/benchmark_methods.py``'s, the very functions with which
+``tests/test_benchmarks_pixels.py`` checks that ours and theirs make the same pixels on the same state (all rows
+but the background one); this script measures the cost.
 
 Usage: ``python bench/env_throughput.py [--steps 40] [--rounds 3]``
 """
@@ -31,15 +33,13 @@ Usage: ``python bench/env_throughput.py [--steps 40] [--rounds 3]``
 from __future__ import annotations
 
 import argparse
-import colorsys
 import os
 import statistics
 import time
 from collections.abc import Callable
 
-import cv2
+import benchmark_methods as methods
 import gymnasium as gym
-import mujoco
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -48,7 +48,6 @@ from PIL import Image
 from sgfd_envs import domains
 from sgfd_envs.backgrounds import ProceduralBackground, make_background
 from sgfd_envs.benchmarks import dcs, dmcgb, dmcgb2
-from sgfd_envs.benchmarks.scene import TextureSlot, object_id, rgb_attribute, suite_texture_data
 from sgfd_envs.registry import task_entry
 
 IMAGE_SIZE = 84
@@ -105,11 +104,6 @@ class Loop:
         return self.physics.render(IMAGE_SIZE, IMAGE_SIZE, camera_id=0)
 
 
-def _upload(physics, texture_id: int) -> None:
-    with physics.contexts.gl.make_current() as ctx:
-        ctx.call(mujoco.mjr_uploadTexture, physics.model.ptr, physics.contexts.mujoco.ptr, texture_id)
-
-
 def plain_render_stepper(domain: str, task: str, repeat: int) -> Stepper:
     loop = Loop(domains.load_suite(domain, task), repeat, seed=0)
 
@@ -136,63 +130,38 @@ def colour_rule_stepper(env_id: str) -> Stepper:
     return step
 
 
-def _green_screen_per_pixel(rendered: np.ndarray, background: np.ndarray) -> np.ndarray:
-    out = rendered.copy()
-    for row in range(rendered.shape[0]):
-        for col in range(rendered.shape[1]):
-            red, green, blue = (int(c) / 255.0 for c in rendered[row, col])
-            hue, saturation, value = colorsys.rgb_to_hsv(red, green, blue)
-            if 100 <= hue * 360 <= 185 and 80 <= saturation * 255 <= 255 and 70 <= value * 255 <= 255:
-                out[row, col] = background[row, col]
-    return out
-
-
 def dmcgb_video_stepper(domain: str, task: str) -> Stepper:
     """DMC-GB's video_hard (see the module docstring)."""
-    loop = Loop(domains.load_suite(domain, task), dmcgb.TASKS[(domain, task)], seed=0)
-    green = rgb_attribute(dmcgb.GREEN_SCREEN_RGB)
-    physics = loop.physics
-    sky, grid = TextureSlot(physics, "skybox"), TextureSlot(physics, "grid")
-    sky.write(suite_texture_data("skybox", rgb1=green, rgb2=green, markrgb=green))
-    grid.write(suite_texture_data("grid", rgb1=green, rgb2=green, markrgb=green))
-    loop.render()
-    _upload(physics, sky.texture_id)
-    _upload(physics, grid.texture_id)
+    dm_env = domains.load_suite(domain, task)
+    dm_env.physics.reload_from_xml_string(*methods.dmcgb_green_model(domain, "video_hard"))
+    loop = Loop(dm_env, dmcgb.TASKS[(domain, task)], seed=0)
     clip = ProceduralBackground(3100, 352, 352, n_frames=500)
 
     def step() -> np.ndarray:
         loop.step()
         rendered = loop.render()
-        frame = torch.from_numpy(clip.frame(loop.agent_steps)).permute(2, 0, 1).float().unsqueeze(0) / 255.0
-        frame = F.interpolate(frame, size=(IMAGE_SIZE, IMAGE_SIZE), mode="bilinear", align_corners=False)
-        frame = (frame * 255.0).byte().squeeze(0).permute(1, 2, 0).numpy()
-        return _green_screen_per_pixel(rendered, frame)
+        clip_frame = torch.from_numpy(clip.frame(loop.agent_steps)).permute(2, 0, 1).float().unsqueeze(0) / 255.0
+        scaled = F.interpolate(clip_frame, size=(IMAGE_SIZE, IMAGE_SIZE), mode="bilinear", align_corners=False)
+        frame = (scaled * 255.0).byte().squeeze(0).permute(1, 2, 0).numpy()
+        return methods.green_screen(rendered, frame)
 
     return step
 
 
 def dmcgb2_video_stepper(domain: str, task: str) -> Stepper:
     """DMC-GB2's video_hard (see the module docstring)."""
-    side = dmcgb2.PROJECTOR_TEXTURE_SIDE
-    loop = Loop(dmcgb2.load_with_projector(domain, task, side), dmcgb2.TASKS[(domain, task)], seed=0)
-    physics = loop.physics
-    screen = TextureSlot(physics, "video_screen")
-    site = object_id(physics, mujoco.mjtObj.mjOBJ_SITE, "video_screen")
-    torso = object_id(physics, mujoco.mjtObj.mjOBJ_BODY, "torso")
-    follow = dmcgb2.PROJECTOR_FOLLOWS.get(domain)
-    physics.model.mat_rgba[object_id(physics, mujoco.mjtObj.mjOBJ_MATERIAL, "grid"), 3] = 0.0
+    dm_env = domains.load_suite(domain, task)
+    dm_env.physics.reload_from_xml_string(*methods.dmcgb2_screen_model(domain))
+    loop = Loop(dm_env, dmcgb2.TASKS[(domain, task)], seed=0)
+    methods.dmcgb2_prepare(loop.physics, "video_hard")
     source = ProceduralBackground(3101, 352, 352, n_frames=500)
     # Resized when the clip is loaded at the episode's start (outside the timed steps here).
-    frames = [np.asarray(Image.fromarray(source.frame(t)).resize((side, side), Image.BICUBIC)) for t in range(500)]
+    frames = [methods.dmcgb2_resize(source.frame(t)) for t in range(500)]
     loop.render()
 
     def step() -> np.ndarray:
         loop.step()
-        screen.write(frames[loop.agent_steps % len(frames)], (side, side))
-        _upload(physics, screen.texture_id)
-        if follow is not None:
-            physics.data.site_xpos[site, 0] = physics.data.subtree_com[torso, 0] + follow[0]
-            physics.data.site_xpos[site, 2] = physics.data.subtree_com[torso, 2] + follow[1]
+        methods.dmcgb2_show(loop.physics, domain, frames[loop.agent_steps % len(frames)])
         return loop.render()
 
     return step
@@ -200,20 +169,20 @@ def dmcgb2_video_stepper(domain: str, task: str) -> Stepper:
 
 def dcs_stepper(domain: str, task: str, repeat: int, scale: float, every: int, renders_each_step: bool) -> Stepper:
     """The Distracting Control Suite's way (google-research: ``every`` 1; DMC-GB's distracting_cs: 2, and a render
-    after every simulator step by dm_control's pixel wrapper inside dmc2gym)."""
+    after every simulator step by dm_control's pixel wrapper inside dmc2gym). The random walks are sgfd_envs'
+    (the same draws as DCS's); the floor, sky and camera pose are the benchmark's (``benchmark_methods``)."""
     dm_env = domains.load_suite(domain, task)
     physics = dm_env.physics
-    side = dcs.SKY_TEXTURE_SIDE
-    sky = TextureSlot(physics, "skybox")
-    alpha = dcs.GROUND_ALPHA.get(domain, dcs.DEFAULT_GROUND_ALPHA)
-    physics.model.mat_rgba[object_id(physics, mujoco.mjtObj.mjOBJ_MATERIAL, "grid"), 3] = alpha
+    methods.dcs_prepare(physics, domain)
     # DCS resizes every frame of the episode's video to the sky texture when the episode starts (untimed here).
     source = ProceduralBackground(4000, 120, 214, n_frames=70)
-    frames = [cv2.resize(source.frame(t), (side, side), interpolation=cv2.INTER_LINEAR) for t in range(70)]
-    camera = dcs.CameraWalk(physics, 0, scale, dynamic=True, upper_quadrant=domain != "reacher")
+    frames = [methods.dcs_resize(source.frame(t), Image.Resampling.BILINEAR) for t in range(70)]
+    upper_quadrant = domain != "reacher"
+    camera = dcs.CameraWalk(physics, 0, scale, dynamic=True, upper_quadrant=upper_quadrant)
     colour = dcs.ColourWalk(physics, scale, dynamic=True)
     rng = np.random.default_rng(0)
     state = {"steps": 0, "index": 0, "direction": 1}
+    start_target = np.zeros(3)
 
     def control_step() -> None:
         state["steps"] += 1
@@ -222,18 +191,18 @@ def dcs_stepper(domain: str, task: str, repeat: int, scale: float, every: int, r
             if index <= 0 or index >= len(frames) - 1:
                 state["direction"] *= -1
             state["index"] = int(np.clip(index, 0, len(frames) - 1))
-            sky.write(frames[state["index"]], (side, side))
-            _upload(physics, sky.texture_id)
+            methods.dcs_show_sky(physics, frames[state["index"]])
             camera.advance(rng)
             colour.advance(rng)
-        position, orientation = camera.pose()
-        physics.data.cam_xpos[0], physics.data.cam_xmat[0] = position, orientation.reshape(-1)
+        pose = methods.dcs_camera_pose(physics, camera.spherical, camera.roll, start_target, upper_quadrant)
+        methods.dcs_set_camera(physics, pose)
         if renders_each_step:
             physics.render(IMAGE_SIZE, IMAGE_SIZE, camera_id=0)
 
     loop = Loop(dm_env, repeat, seed=0, on_control_step=control_step)
 
     def start() -> None:
+        start_target[:] = methods.dcs_look_at_point(physics)
         camera.start(rng)
         colour.start(rng)
         state.update(steps=0, index=int(rng.integers(len(frames))), direction=1)

@@ -36,6 +36,7 @@ import argparse
 import statistics
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -105,17 +106,45 @@ def agents(env_factory: Callable[[], VecEnv], **common) -> dict[str, BaseAlgorit
     return models
 
 
+#: Each phase held through SGFD's own settings (and the weighting's state ``ready``: whether the weights have
+#: started). Steady: every accuracy above 0 reaches the least threshold, so the classifier scores each batch and
+#: does not train. Classifier and mixed: a classifier whose learning rate leaves its parameters as they are never
+#: reaches an accuracy of 1, so it trains on every round at its full cost (forward, backward, Adam step).
+PHASE_SETTINGS: dict[str, dict[str, Any]] = {
+    "steady": {"accuracy_threshold": 1e-6},
+    "classifier": {"accuracy_threshold": 1.0, "classifier_lr": 1e-12},
+    "mixed": {"accuracy_threshold": 1.0, "classifier_lr": 1e-12},
+}
+
+
 def sgfd_in_phase(phase: str, policy: type, env: VecEnv, classifier_interval: int = 1, **common) -> SGFD_SAC:
-    """SGFD_SAC held in one phase: its accuracy threshold decides whether the classifier trains (on the steps
-    ``classifier_interval`` allows)."""
+    """SGFD_SAC held in one phase (:data:`PHASE_SETTINGS`): whether the classifier trains (on the steps
+    ``classifier_interval`` allows) and whether the weights are on."""
     model = SGFD_SAC(
-        policy, env, actor_update_interval=1, classifier_start=0, classifier_interval=classifier_interval, **common
+        policy,
+        env,
+        actor_update_interval=1,
+        classifier_start=0,
+        classifier_interval=classifier_interval,
+        **PHASE_SETTINGS[phase],
+        **common,
     )
-    # The bench holds the phase by hand: a threshold no accuracy reaches keeps the classifier training,
-    # one every accuracy reaches keeps it idle; the weighting's ready says whether the weights are on.
-    model.weighting.accuracy_threshold = float("inf") if phase in ("classifier", "mixed") else 0.0
     model.weighting.ready = phase in ("steady", "mixed")
     return model
+
+
+def classifier_steps(model: SGFD_SAC) -> int:
+    """The optimiser steps the paper reading's classifier has taken (Adam counts them)."""
+    state = model.weighting.classifier_optimizer.state.get(next(model.classifier.parameters()), {})
+    return int(state.get("step", 0))
+
+
+def check_phase(phase: str, model: SGFD_SAC, first_update: int, steps_before: int) -> None:
+    """That the classifier trained on every round its interval allows since ``first_update`` (steady: never)."""
+    interval = model.sgfd.classifier_interval
+    rounds = sum(1 for index in range(first_update, model._n_updates) if index % interval == 0)
+    taken, wanted = classifier_steps(model) - steps_before, 0 if phase == "steady" else rounds
+    assert taken == wanted, f"SGFD {phase}: the classifier took {taken} steps where the phase holds {wanted}"
 
 
 def synchronize(device: th.device) -> None:
@@ -161,9 +190,15 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> None
         time_round(model, args.warmup or (20 if gpu else 2), args.batch_size, device)
     steps = args.round_steps or ((200 if gpu else 20) if name == "mlp" else (50 if gpu else 2))
     times: dict[str, list[float]] = {key: [] for key in models}
+    # each SGFD model's phase (the agents' SGFD on AMBS: steady), checked after the timed rounds
+    sgfd_models = {key: model for key, model in models.items() if isinstance(model, SGFD_SAC)}
+    start = {key: (model._n_updates, classifier_steps(model)) for key, model in sgfd_models.items()}
     for _ in range(args.rounds):
         for key, model in models.items():
             times[key].append(time_round(model, steps, args.batch_size, device))
+    for key, model in sgfd_models.items():
+        phase = key.removeprefix("SGFD ")
+        check_phase(phase if phase in PHASES else "steady", model, *start[key])
     steady = models["SGFD on AMBS" if name == "agents" else "SGFD steady"]
     assert isinstance(steady, SGFD_SAC) and "sgfd/weight_ess" in steady._stats, "SGFD did not reweight"
     if name != "agents":

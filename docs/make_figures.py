@@ -17,12 +17,13 @@ import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import cv2
-import gymnasium as gym
 import numpy as np
 
 import sgfd_envs
+from sgfd_envs.demo import benchmark_observations, rollout
 
 DOCS = Path(__file__).resolve().parent
 STUDIES = DOCS.parent / "studies"
@@ -32,18 +33,13 @@ STEPS = 30  # random agent steps after reset, so the robot is in motion
 SEED = 0
 
 
-def observation(env_id: str, **env_kwargs) -> np.ndarray:
-    """The uint8 (84, 84, 3) observation of ``env_id`` after :data:`STEPS` seeded random actions.
+def observation(env_id: str, **env_kwargs: Any) -> np.ndarray:
+    """The uint8 (84, 84, 3) observation of ``env_id`` after :data:`STEPS` seeded random actions (the demo's).
 
     :param env_id: a registered id
     :param env_kwargs: passed to ``gym.make`` (split, domain, setting, ...)
     """
-    with gym.make(env_id, **env_kwargs) as env:
-        pixels, _ = env.reset(seed=SEED)
-        env.action_space.seed(SEED)
-        for _ in range(STEPS):
-            pixels, *_ = env.step(env.action_space.sample())
-    return pixels
+    return rollout(env_id, STEPS, SEED, **env_kwargs)[0]
 
 
 def tile(pixels: np.ndarray, *lines: str, size: int = TILE) -> np.ndarray:
@@ -92,39 +88,29 @@ def morphology() -> np.ndarray:
         row = []
         for split in sgfd_envs.splits(env_id):
             for domain in range(sgfd_envs.n_domains(env_id, split)):
-                with gym.make(env_id, split=split, domain=domain) as env:
-                    setting = env.unwrapped.setting
-                    value = env.unwrapped.morphology_value
-                pixels = observation(env_id, split=split, domain=domain)
-                row.append(tile(pixels, f"MT-{task}", f"{split[:6]} s{setting} {value:.3g} m"))
+                pixels, label = rollout(env_id, STEPS, SEED, split=split, domain=domain)
+                row.append(tile(pixels, f"MT-{task}", f"{split[:6]} s{label.setting} {label.morphology_value:.3g} m"))
         rows.append(row)
     return grid(rows)
 
 
-def benchmark(name: str, tasks: tuple[str, ...], **env_kwargs) -> Callable[[], np.ndarray]:
+def benchmark(name: str, tasks: tuple[str, ...]) -> Callable[[], np.ndarray]:
     """A function drawing a benchmark: one row per task, one column per split (train, then each test mode).
 
     :param name: ``"DMCGB"``, ``"DMCGB2"`` or ``"DCS"``
     :param tasks: task names as in the ids (``"walker-walk"``)
-    :param env_kwargs: passed to every ``gym.make``
     """
 
     def draw() -> np.ndarray:
-        rows = []
-        for task in tasks:
-            env_id = f"{name}/{task}-v0"
-            row = [
-                tile(observation(env_id, split=split, **env_kwargs), task, split) for split in sgfd_envs.splits(env_id)
-            ]
-            rows.append(row)
-        return grid(rows)
+        rows = benchmark_observations(name, STEPS, SEED, tasks=tasks)
+        return grid([[tile(pixels, task, split) for task, split, pixels in row] for row in rows])
 
     return draw
 
 
 def overview() -> np.ndarray:
     """The README's picture: one training domain and the unseen domains of each family, in one row."""
-    shown = [
+    shown: list[tuple[str, dict[str, Any], str, str]] = [
         ("SGFD/walker-walk-v0", dict(split="train", domain=0), "backgrounds", "train 0"),
         ("SGFD/walker-walk-v0", dict(split="test", domain=0), "backgrounds", "test 0 (unseen)"),
         ("SGFD/MT-walker-walk-v0", dict(split="train", domain=0), "morphology", "train s1"),

@@ -5,8 +5,8 @@ MT task for each seed, evaluates every run on a test split, and reports what Aga
 recommend for few runs: the interquartile mean (IQM) of the normalised score (return / 1000) over all runs and
 tasks with a 95% stratified-bootstrap confidence interval, and the probability that SGFD improves on DR.
 
-The runs are those of ``mt_state_extrapolation.py`` (states with the varied length appended, the quick
-configuration), each in its own process, ``--jobs`` at a time. Five seeds are the least the studies in
+The runs are those of ``mt_state_extrapolation.py`` (states with the varied length appended, that example's
+settings), each in its own process, ``--jobs`` at a time. Five seeds are the least the studies in
 ``studies/`` rest on; fewer show the method, not an answer.
 
     python examples/compare_rliable.py                                    # 2 tasks x 3 seeds x 2 algorithms

@@ -3,8 +3,9 @@
 The agent trains on the ``train`` split of an MT id (4 torso lengths, one sub-env each) and is evaluated on the
 ``interpolation`` and ``extrapolation`` splits. Both sides observe the same thing: the robot's state with the
 varied length appended (``obs_type="state"``, ``observe_parameter=True``), so a policy trained on one can be
-evaluated on the other. The settings are the quick configuration's (``sgfd_zoo/hyperparams/quick/``): 256-wide
-networks, one update per collected transition, the weights on the actor's loss only.
+evaluated on the other. The example's own settings, small enough for a laptop: 256-wide networks, one update per
+collected transition, the weights on the actor's loss only (the ``sgfd-zoo quick`` configuration is similar but
+not the same; its values live in ``sgfd_zoo/hyperparams/quick/``).
 
     python examples/mt_state_extrapolation.py                          # 20k steps on MT-walker-walk
     python examples/mt_state_extrapolation.py --env SGFD/MT-cheetah-run-v0 --save sgfd_cheetah
@@ -44,7 +45,7 @@ def make_model(algo: str, env_id: str, seed: int, steps: int, classifier_start: 
         learning_rate=1e-3,
         batch_size=128,
         tau=0.01,
-        learning_starts=min(1000, steps // 2),  # random actions first (1000, as the quick configuration)
+        learning_starts=min(1000, steps // 2),  # random actions first (1000, or half a short run)
         gradient_steps=-1,  # one update per collected transition (4 per step of the 4 sub-envs)
         seed=seed,
         verbose=verbose,

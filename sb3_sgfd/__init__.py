@@ -4,6 +4,7 @@ visual-RL agents of the paper's tables (DBC, AMBS, TED, SGQN) on one SAC trainin
 One folder per algorithm (``sgfd/``, ``ambs/``, ``dbc/``, ``ted/``, ``sgqn/``: the algorithm, its policy if it has
 one, its math), and what they share in ``common/``."""
 
+from importlib import metadata
 from pathlib import Path
 
 from sb3_sgfd import _legacy
@@ -25,7 +26,13 @@ from sb3_sgfd.ted import TED
 
 _legacy.install()
 
-__version__ = (Path(__file__).parent / "version.txt").read_text().strip()
+# The installed distribution's version, which pip took from sgfd_envs/version.txt (the one file both distributions
+# read), so an install and the file cannot disagree. A checkout used without installing it has no metadata: it
+# reads that same file beside the package.
+try:
+    __version__ = metadata.version("sb3-sgfd")
+except metadata.PackageNotFoundError:
+    __version__ = (Path(__file__).resolve().parents[1] / "sgfd_envs" / "version.txt").read_text().strip()
 
 __all__ = [
     "AMBS",

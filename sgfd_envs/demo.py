@@ -8,28 +8,29 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import cv2
 import gymnasium as gym
 import numpy as np
 
-from sgfd_envs.dmc import DMCEnv
+from sgfd_envs.dmc import DMCEnv, DomainLabel
 from sgfd_envs.registry import BENCHMARK_IDS, SGFD_IDS, benchmark_of, splits, test_splits
 
 _TILE = 168
 _LABEL_HEIGHT = 34
 
 
-def observe(env_id: str, split: str, steps: int, seed: int, image_size: int) -> tuple[np.ndarray, str]:
-    """The pixel observation of domain 0 of a split after ``steps`` random actions, and a caption.
+def rollout(env_id: str, steps: int = 30, seed: int = 0, **env_kwargs: Any) -> tuple[np.ndarray, DomainLabel]:
+    """The pixel observation after ``steps`` seeded random actions, and which domain the env was (its label: split,
+    domain and, for MT ids, setting and morphology value), from one env.
 
     :param env_id: one of :data:`SGFD_IDS` or :data:`BENCHMARK_IDS`
-    :param split: a split of the id
     :param steps: agent steps taken after reset, so the robot is in motion
     :param seed: seed of the reset and the actions
-    :param image_size: observation size
+    :param env_kwargs: passed to ``gym.make`` (split, domain, image_size, ...)
     """
-    with gym.make(env_id, split=split, domain=0, image_size=image_size) as env:
+    with gym.make(env_id, **env_kwargs) as env:
         observation, _ = env.reset(seed=seed)
         env.action_space.seed(seed)
         for _ in range(steps):
@@ -37,10 +38,34 @@ def observe(env_id: str, split: str, steps: int, seed: int, image_size: int) -> 
         unwrapped = env.unwrapped
         if not isinstance(unwrapped, DMCEnv):
             raise ValueError(f"env_id must be one of SGFD_IDS or BENCHMARK_IDS (a DeepMind Control id), got {env_id!r}")
-        # A benchmark's split is one distribution (domain 0 says nothing).
-        caption = split if benchmark_of(env_id) else f"{split} 0"
-        if unwrapped.setting is not None:
-            caption += f" s{unwrapped.setting} {unwrapped.morphology_value:.3g}m"
+        label = unwrapped.label
+    return observation, label
+
+
+def observe(
+    env_id: str,
+    split: str,
+    steps: int = 30,
+    seed: int = 0,
+    image_size: int = 84,
+    domain: int = 0,
+    **env_kwargs: Any,
+) -> tuple[np.ndarray, str]:
+    """The pixel observation of a domain of a split after ``steps`` random actions, and a caption.
+
+    :param env_id: one of :data:`SGFD_IDS` or :data:`BENCHMARK_IDS`
+    :param split: a split of the id
+    :param steps: agent steps taken after reset, so the robot is in motion
+    :param seed: seed of the reset and the actions
+    :param image_size: observation size
+    :param domain: index of the domain within the split
+    :param env_kwargs: other arguments of ``gym.make``
+    """
+    observation, label = rollout(env_id, steps, seed, split=split, domain=domain, image_size=image_size, **env_kwargs)
+    # A benchmark's split is one distribution (domain 0 says nothing).
+    caption = split if benchmark_of(env_id) else f"{split} {domain}"
+    if label.setting is not None:
+        caption += f" s{label.setting} {label.morphology_value:.3g}m"
     return observation, caption
 
 
@@ -69,25 +94,52 @@ def demo_grid(steps: int = 30, seed: int = 0, image_size: int = 84) -> np.ndarra
     return np.vstack([np.hstack(tiles) for tiles in rows.values()])
 
 
-def benchmark_grid(benchmark: str, steps: int = 30, seed: int = 0, image_size: int = 84) -> np.ndarray:
+def benchmark_observations(
+    benchmark: str,
+    steps: int = 30,
+    seed: int = 0,
+    image_size: int = 84,
+    tasks: tuple[str, ...] | None = None,
+) -> list[list[tuple[str, str, np.ndarray]]]:
+    """A benchmark's observations: one row per task, one (task, split, observation) per split (train, then every
+    test mode).
+
+    :param benchmark: ``"DMCGB"``, ``"DMCGB2"`` or ``"DCS"``
+    :param steps: agent steps taken after reset
+    :param seed: seed of the resets and actions
+    :param image_size: observation size
+    :param tasks: task names as in the ids (``"walker-walk"``), in this order; None: every task of the benchmark
+    """
+    if benchmark not in BENCHMARK_IDS:
+        raise ValueError(f"benchmark must be one of {tuple(BENCHMARK_IDS)}, got {benchmark!r}")
+    known = {env_id.split("/", 1)[1].rsplit("-v", 1)[0]: env_id for env_id in BENCHMARK_IDS[benchmark]}
+    unknown = [task for task in tasks or () if task not in known]
+    if unknown:
+        raise ValueError(f"tasks must be tasks of {benchmark} ({', '.join(known)}), got {unknown!r}")
+    rows = []
+    for task_name in tasks or tuple(known):
+        env_id = known[task_name]
+        row = []
+        for split in splits(env_id):
+            observation, caption = observe(env_id, split, steps, seed, image_size)
+            row.append((task_name, caption, observation))
+        rows.append(row)
+    return rows
+
+
+def benchmark_grid(
+    benchmark: str, steps: int = 30, seed: int = 0, image_size: int = 84, tasks: tuple[str, ...] | None = None
+) -> np.ndarray:
     """RGB grid of a benchmark: one row per task, one column per split (train, then every test mode).
 
     :param benchmark: ``"DMCGB"``, ``"DMCGB2"`` or ``"DCS"``
     :param steps: agent steps taken after reset
     :param seed: seed of the resets and actions
     :param image_size: observation size
+    :param tasks: task names as in the ids (``"walker-walk"``); None: every task of the benchmark
     """
-    if benchmark not in BENCHMARK_IDS:
-        raise ValueError(f"benchmark must be one of {tuple(BENCHMARK_IDS)}, got {benchmark!r}")
-    rows = []
-    for env_id in BENCHMARK_IDS[benchmark]:
-        task_name = env_id.split("/", 1)[1].rsplit("-v", 1)[0]
-        tiles = []
-        for split in splits(env_id):
-            observation, caption = observe(env_id, split, steps, seed, image_size)
-            tiles.append(_labelled(observation, [task_name, caption]))
-        rows.append(np.hstack(tiles))
-    return np.vstack(rows)
+    rows = benchmark_observations(benchmark, steps, seed, image_size, tasks)
+    return np.vstack([np.hstack([_labelled(image, [task, split]) for task, split, image in row]) for row in rows])
 
 
 def main(argv: list[str] | None = None) -> None:

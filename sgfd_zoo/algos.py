@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
+
+HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 
 
 @dataclass(frozen=True)
@@ -72,6 +75,31 @@ SGFD_ALGOS: dict[str, ZooAlgo] = {
 }
 # Order of the tables' columns: the keys above, then any other in name order.
 ALGO_ORDER = list(SGFD_ALGOS)
+
+
+def hyperparams_file(algo: str, quick: bool = False) -> Path:
+    """The zoo's yaml for ``algo``: paper scale, or the quick configuration for a laptop-size run."""
+    if algo not in SGFD_ALGOS:
+        return HYPERPARAMS_DIR / ("quick" if quick else "") / f"{algo}.yml"
+    entry = SGFD_ALGOS[algo]
+    if quick:
+        return HYPERPARAMS_DIR / "quick" / f"{entry.quick_hyperparams or entry.hyperparams}.yml"
+    return HYPERPARAMS_DIR / f"{entry.hyperparams}.yml"
+
+
+def hyperparams_entry(algo: str, env_id: str, quick: bool = False) -> dict[str, Any]:
+    """
+    The entry of ``algo``'s yaml that a run on ``env_id`` reads, as rl-zoo3's ExperimentManager picks it: the env
+    id's own entry, else ``default``; empty when the file has neither (rl-zoo3 then stops).
+
+    :param algo: algorithm key
+    :param env_id: the env id
+    :param quick: the quick configuration's yaml instead of the paper-scale one
+    """
+    import yaml  # here: the tables above are read without parsing any yaml
+
+    entries = yaml.safe_load(hyperparams_file(algo, quick).read_text()) or {}
+    return dict(entries.get(env_id, entries.get("default", {})))
 
 
 def column_name(algo: str) -> str:

@@ -23,7 +23,7 @@ class TrainingStopped(ZooError):
     and the message says how to continue it.
 
     :param message: what happened, what is kept, what to type
-    :param exit_code: 130 for an interrupt (the shell's convention), 1 otherwise
+    :param exit_code: ``exit_codes.INTERRUPTED`` for an interrupt (the shell's 128 + SIGINT), 1 otherwise
     """
 
     label = "stopped"
@@ -99,12 +99,19 @@ def check_at_least(flag: str, value: float | None, low: float, strict: bool = Fa
         raise ZooError(f"{flag} must be {'>' if strict else '>='} {low:g}, got {value:g}")
 
 
-def check_keywords(where: str, given: Iterable[str], valid: Iterable[str]) -> None:
+def check_keywords(
+    where: str,
+    given: Iterable[str],
+    valid: Iterable[str],
+    message: str = "unknown key(s) in {where}: {keys}; it takes {valid}",
+) -> None:
     """A ZooError naming the keys of ``given`` that are not in ``valid``, a close match, and the valid ones.
 
     :param where: what the keys are given to, e.g. ``policy_kwargs of sgfd_sac (SGFDPolicy)``
     :param given: the keys given
     :param valid: the keys it takes
+    :param message: the error's line, formatted with ``where``, ``keys`` (each unknown key with its close match)
+        and ``valid`` (the valid keys in name order)
     """
     valid = sorted(valid)
     unknown = [key for key in given if key not in valid]
@@ -114,7 +121,7 @@ def check_keywords(where: str, given: Iterable[str], valid: Iterable[str]) -> No
     for key in unknown:
         close = difflib.get_close_matches(key, valid, n=1)
         hints.append(f"{key!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
-    raise ZooError(f"unknown key(s) in {where}: {', '.join(hints)}; it takes {', '.join(valid) or 'none'}")
+    raise ZooError(message.format(where=where, keys=", ".join(hints), valid=", ".join(valid) or "none"))
 
 
 def has_flag(argv: Sequence[str], flag: str) -> bool:

@@ -27,6 +27,7 @@ from sgfd_zoo.checkpoints import (
     scan_checkpoints,
     write_index,
 )
+from sgfd_zoo.exit_codes import INTERRUPTED, TERMINATED
 from sgfd_zoo.files import FileWriteError, StoredFile, UnreadableFile, atomic_write, write_failure
 from sgfd_zoo.locks import RunLock
 
@@ -99,9 +100,9 @@ class StopRequest:
 
     def __init__(self) -> None:
         self.reason: str | None = None
-        self.exit_code = 130
+        self.exit_code = INTERRUPTED
 
-    def request(self, reason: str, exit_code: int = 130) -> None:
+    def request(self, reason: str, exit_code: int = INTERRUPTED) -> None:
         self.reason, self.exit_code = reason, exit_code
 
     def __bool__(self) -> bool:
@@ -122,7 +123,7 @@ def default_checkpoint_interval(n_timesteps: int) -> int:
 
 # The signals that stop training at a checkpoint: a terminal's Ctrl-C, and the SIGTERM a batch system (SLURM's
 # time limit or preemption, a job's cancel) sends before it kills; each with its name and the exit code it gives.
-DEFERRED_SIGNALS = {signal.SIGINT: ("Ctrl-C", 130), signal.SIGTERM: ("SIGTERM", 143)}
+DEFERRED_SIGNALS = {signal.SIGINT: ("Ctrl-C", INTERRUPTED), signal.SIGTERM: ("SIGTERM", TERMINATED)}
 
 
 @contextlib.contextmanager

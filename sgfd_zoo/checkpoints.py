@@ -108,7 +108,8 @@ def describe_checkpoint(folder: Path, checkpoint: Checkpoint) -> Checkpoint:
 def remove_checkpoint_files(folder: Path, keep: Iterable[Checkpoint]) -> list[str]:
     """Delete the checkpoint files (and the temporary files of interrupted writes) of ``folder`` that no
     checkpoint of ``keep`` names; returns their names. Only its writer calls this (it holds the run's lock), so
-    every temporary file there is one a stopped process left."""
+    every temporary file there is one a stopped process left, or one of a process trying to take the lock, which
+    is refused either way (:mod:`sgfd_zoo.locks`)."""
     kept = {stored.name for checkpoint in keep for stored in checkpoint.files.values()}
     removed = []
     leftovers = [*Path(folder).glob(f"{TMP_PREFIX}*"), *Path(folder).glob(f"*/{TMP_PREFIX}*")]

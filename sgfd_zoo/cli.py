@@ -9,6 +9,8 @@ import importlib
 import sys
 from collections.abc import Sequence
 
+from sgfd_zoo.exit_codes import INTERRUPTED
+
 # command -> (module:function, one-line description)
 COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("sgfd_zoo.training:train", "train an agent (rl-zoo3's flags, plus --quick, --resume, --no-progress)"),
@@ -77,7 +79,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         # Training handles Ctrl-C itself (it stops at a checkpoint); this is Ctrl-C anywhere else.
         print(f"sgfd-zoo {command}: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED
 
 
 def run(command: str, argv: Sequence[str]) -> int:

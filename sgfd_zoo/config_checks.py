@@ -5,7 +5,6 @@ one-line :class:`~sgfd_zoo.arguments.ZooError` naming the key, the value and wha
 from __future__ import annotations
 
 import contextlib
-import difflib
 import inspect
 from collections.abc import Iterator
 from collections.abc import Set as AbstractSet
@@ -18,7 +17,7 @@ from stable_baselines3.common.torch_layers import FlattenExtractor, NatureCNN
 
 from sb3_sgfd.common.policies import MlpEncoder, PixelEncoder
 from sb3_sgfd.common.representation import REPRESENTATIONS
-from sb3_sgfd.common.validation import check_hyperparameters
+from sb3_sgfd.common.validation import check_hyperparameters, check_non_negative_int, check_positive_int
 from sgfd_zoo.arguments import ZooError, check_keywords
 
 # Keys rl-zoo3 consumes itself before the rest goes to the algorithm's constructor.
@@ -39,6 +38,15 @@ ZOO_KEYS = {
 KWARGS_KEYS = ("policy_kwargs", "replay_buffer_kwargs", "representation_kwargs")
 # What SB3 passes a replay buffer itself, besides replay_buffer_kwargs.
 BUFFER_ARGUMENTS = {"buffer_size", "observation_space", "action_space", "device", "n_envs", "optimize_memory_usage"}
+
+
+@contextlib.contextmanager
+def zoo_error() -> Iterator[None]:
+    """A check's ValueError (one naming the value and what fits) as the zoo's one-line ZooError."""
+    try:
+        yield
+    except ValueError as error:
+        raise ZooError(first_line(error)) from None
 
 
 @contextlib.contextmanager
@@ -86,31 +94,26 @@ def check_env_kwargs(env_id: str, env_kwargs: dict[str, Any], where: str = "env_
             splits = ", ".join(sgfd_envs.splits(env_id))
             raise ZooError(f"{where} {key}:{env_kwargs[key]!r}: {why.format(splits=splits)}; leave it out")
     allowed = [key for key in env_kwargs_of(env_id) if key not in ZOO_ENV_KWARGS]
-    unknown = [key for key in env_kwargs if key not in allowed]
-    if unknown:
-        hints = []
-        for key in unknown:
-            close = difflib.get_close_matches(key, allowed, n=1)
-            hints.append(f"{key!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
-        raise ZooError(f"{where}: {env_id} does not take {', '.join(hints)}; it takes {', '.join(allowed)}")
+    check_keywords(f"{where}: {env_id}", env_kwargs, allowed, "{where} does not take {keys}; it takes {valid}")
 
 
 def rl_zoo3_schedule_start(key: str, value: Any) -> Any:
     """The value a hyperparameter starts at, where rl-zoo3 reads a string as a schedule (``lin_0.001``: linear
-    from 0.001 to 0); a ZooError for any other string. Other values are returned as they are.
+    from 0.001 to 0), read by rl-zoo3's own parser; a ZooError for a string it cannot read. Other values are
+    returned as they are.
 
-    :param key: e.g. ``learning_rate``
+    :param key: a key rl-zoo3 reads schedules of, e.g. ``learning_rate``
     :param value: its value in the configuration
     """
     if not isinstance(value, str):
         return value
-    kind, _, start = value.partition("_")
     try:
-        if kind == "lin":
-            return float(start)
-    except ValueError:
-        pass
-    raise ZooError(f"{key} must be a number, or a schedule 'lin_<start>' (linear from <start> to 0), got {value!r}")
+        schedule = rl_zoo3.exp_manager.ExperimentManager._preprocess_schedules({key: value})[key]
+        return schedule.initial_value
+    except (ValueError, AttributeError):  # AttributeError: a key rl-zoo3 reads no schedule of
+        raise ZooError(
+            f"{key} must be a number, or a schedule 'lin_<start>' (linear from <start> to 0), got {value!r}"
+        ) from None
 
 
 def check_zoo_values(hyperparams: dict[str, Any], steps_given: bool) -> None:
@@ -120,18 +123,20 @@ def check_zoo_values(hyperparams: dict[str, Any], steps_given: bool) -> None:
     :param hyperparams: the configuration
     :param steps_given: ``-n`` was given
     """
+    values = {}
     if not steps_given:
         steps = hyperparams.get("n_timesteps")
         if steps is None:
             raise ZooError("n_timesteps: the configuration has none; give the steps to train with -n")
-        if isinstance(steps, bool) or not isinstance(steps, (int, float)) or steps < 1 or steps != int(steps):
-            raise ZooError(f"n_timesteps={steps!r}: expected a whole number of steps >= 1")
-    n_envs = hyperparams.get("n_envs")
-    if n_envs is not None and (isinstance(n_envs, bool) or not isinstance(n_envs, int) or n_envs < 1):
-        raise ZooError(f"n_envs={n_envs!r}: expected a whole number of sub-envs >= 1")
+        # a whole float too (yaml's 5e5), as rl-zoo3 reads it with int()
+        values["n_timesteps"] = int(steps) if isinstance(steps, float) and steps.is_integer() else steps
+    if hyperparams.get("n_envs") is not None:
+        values["n_envs"] = hyperparams["n_envs"]
     frames = hyperparams.get("frame_stack")
-    if frames not in (None, False) and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 0):
-        raise ZooError(f"frame_stack={frames!r}: expected a whole number of frames >= 1 (0 or false: none)")
+    with zoo_error():
+        check_positive_int(**values)
+        if frames not in (None, False):  # 0 or false: no stacking
+            check_non_negative_int(frame_stack=frames)
 
 
 def interval_warnings(n_timesteps: int, eval_freq: int | None, save_freq: int | None) -> list[str]:
@@ -166,12 +171,8 @@ def check_algorithm_values(algo_class: type, hyperparams: dict[str, Any]) -> Non
     values = {key: value for key, value in hyperparams.items() if key not in ZOO_KEYS}
     if "learning_rate" in values:
         values["learning_rate"] = rl_zoo3_schedule_start("learning_rate", values["learning_rate"])
-    if isinstance(values.get("train_freq"), list):  # as rl-zoo3 passes it
-        values["train_freq"] = tuple(values["train_freq"])
-    try:
+    with zoo_error():
         check_hyperparameters(algo_class, values)
-    except ValueError as error:
-        raise ZooError(first_line(error)) from None
 
 
 def constructor_arguments(algo_class: type) -> set[str]:
@@ -325,17 +326,12 @@ def check_nested_kwargs(algo: str, hyperparams: dict[str, Any]) -> None:
 
 
 def first_line(error: BaseException) -> str:
+    """The first non-blank line of ``error``'s message: the zoo's errors are one line."""
     lines = [line.strip() for line in str(error).splitlines() if line.strip()]
     return lines[0] if lines else "(no message)"
 
 
 def check_algo_kwargs(algo: str, hyperparams: dict[str, Any]) -> None:
     """Refuse yaml keys that neither rl-zoo3 nor the algorithm's constructor knows, naming close matches."""
-    known = constructor_arguments(ALGOS[algo])
-    unknown = sorted(set(hyperparams) - known - ZOO_KEYS)
-    if unknown:
-        hints = []
-        for key in unknown:
-            close = difflib.get_close_matches(key, known | ZOO_KEYS, n=1)
-            hints.append(f"{key!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
-        raise ZooError(f"unknown hyperparameter(s) for {algo}: {', '.join(hints)}")
+    known = constructor_arguments(ALGOS[algo]) | ZOO_KEYS
+    check_keywords(algo, sorted(hyperparams), known, "unknown hyperparameter(s) for {where}: {keys}")

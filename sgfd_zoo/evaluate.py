@@ -287,8 +287,10 @@ def main(argv: list[str]) -> int:
     check_at_least("--bootstrap-reps", args.bootstrap_reps, 100)
     for env_id in args.env or []:
         check_env_id(env_id)
-    runs = find_runs(args.folder, args.algo, args.env)
-    unfinished = [run for run in find_runs(args.folder, args.algo, args.env, finished=False) if not run.finished]
+    runs: list[RunFolder] = []
+    unfinished: list[RunFolder] = []  # one scan of the folder, each run's marker read once
+    for run in find_runs(args.folder, args.algo, args.env, finished=False):
+        (runs if run.finished else unfinished).append(run)
     for line in unfinished_report(unfinished):
         print(line)
     if not runs:

@@ -22,7 +22,7 @@ import sgfd_envs
 from sb3_sgfd.common.validation import RefusedTransition
 from sgfd_envs.backgrounds import overlay_bank
 from sgfd_zoo import training_state
-from sgfd_zoo.algos import SGFD_ALGOS, classifier_start_warning, is_sgfd
+from sgfd_zoo.algos import SGFD_ALGOS, classifier_start_warning, hyperparams_file, is_sgfd
 from sgfd_zoo.arguments import TrainingStopped, ZooError, train_command
 from sgfd_zoo.callbacks import CSVLogCallback, MultiSplitEvalCallback, ProgressCallback
 from sgfd_zoo.checkpoint_callback import (
@@ -49,7 +49,7 @@ from sgfd_zoo.config_checks import (
 )
 from sgfd_zoo.files import FileWriteError, atomic_write, write_failure
 from sgfd_zoo.locks import ClaimedRun, claim_new_run, claim_run
-from sgfd_zoo.registration import hyperparams_file, register_algorithms
+from sgfd_zoo.registration import register_algorithms
 from sgfd_zoo.resuming import choose_checkpoint, load_checkpoint, prepare_restart, run_to_resume
 from sgfd_zoo.runs import RunFolder, mark_finished
 from sgfd_zoo.training_state import RestoreTrainingState

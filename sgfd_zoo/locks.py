@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from sgfd_zoo.arguments import ZooError
+from sgfd_zoo.files import fsync, temporary_path
 
 LOCK_FILE = "writer.lock"
 #: How often a writer renews its lock's heartbeat.
@@ -126,8 +127,12 @@ class LockHolder:
 
 def read_holder(folder: Path) -> LockHolder | None:
     """Who holds the lock of run folder ``folder``; None when it is free. A lock file being written, or one that
-    does not parse, counts as held by an unknown writer whose heartbeat is the file's age."""
-    path = Path(folder) / LOCK_FILE
+    does not parse, counts as held by an unknown writer (token ``""``) whose heartbeat is the file's age."""
+    return _read_lock_file(Path(folder) / LOCK_FILE)
+
+
+def _read_lock_file(path: Path) -> LockHolder | None:
+    """The holder a lock file at ``path`` names (see :func:`read_holder`); None when there is no such file."""
     try:
         heartbeat = path.stat().st_mtime
         text = path.read_text()
@@ -148,26 +153,35 @@ def read_holder(folder: Path) -> LockHolder | None:
         return LockHolder("", -1, "an unknown host", None, heartbeat, heartbeat, "its lock file is unreadable")
 
 
+def live_holder(folder: Path) -> LockHolder | None:
+    """The live writer holding the lock of run folder ``folder`` now; None when it is free or its holder is gone."""
+    holder = read_holder(folder)
+    return holder if holder is not None and holder.gone() is None else None
+
+
 class RunLocked(ZooError):
     """Another process writes the run; the message names it and what to do."""
 
-
-def _unique_name(folder: Path, kind: str) -> Path:
-    return Path(folder) / f".{kind}-{_host().split('.')[0]}-{os.getpid()}-{secrets.token_hex(4)}"
+    @staticmethod
+    def being_written(folder: Path, holder: LockHolder) -> str:
+        """E.g. ``logs/sac/X_1 is being written by pid 4242 on host node7 (...) since ..., heartbeat 12 s ago``."""
+        return f"{folder} is being written by {holder.describe()}"
 
 
 def _create(path: Path, content: str) -> bool:
     """Create ``path`` holding ``content`` if it does not exist, atomically: a whole temporary file linked to it.
-    False when it exists. Where the file system has no hard links, an exclusive create (``O_EXCL``) instead."""
-    tmp = _unique_name(path.parent, "lock")
+    False when it exists. Where the file system has no hard links, an exclusive create (``O_EXCL``) instead.
+
+    The temporary file is named like every file the zoo writes (:func:`~sgfd_zoo.files.temporary_path`), so the
+    run's writer removes one a killed process left, as it removes those of interrupted checkpoints; a temporary
+    file so removed while this process was linking it means the folder has a writer: False."""
+    tmp = temporary_path(path)
     try:
-        with open(tmp, "w") as handle:
-            handle.write(content)
-            handle.flush()
-            os.fsync(handle.fileno())
+        tmp.write_text(content)
         try:
+            fsync(tmp)
             os.link(tmp, path)
-        except FileExistsError:
+        except (FileExistsError, FileNotFoundError):  # FileNotFoundError: the writer removed the temporary file
             return False
         except OSError as error:
             if os.stat(tmp).st_nlink == 2:  # NFS: the link was made, its reply lost
@@ -187,35 +201,32 @@ def _create_exclusive(path: Path, content: str) -> bool:
         return False
     with os.fdopen(descriptor, "w") as handle:
         handle.write(content)
-        handle.flush()
-        os.fsync(handle.fileno())
+    fsync(path)
     return True
 
 
 def _take_over(path: Path, stale: LockHolder) -> bool:
     """Remove the lock ``stale`` holds, unless another process replaced it meanwhile: it is renamed away (one
     renamer wins), then checked to be that holder's; another holder's lock is put back."""
-    moved = _unique_name(path.parent, "stale-lock")
+    moved = temporary_path(path)
     try:
         os.rename(path, moved)
     except FileNotFoundError:  # another process took it over first
         return False
     try:
-        if (read_holder_file(moved) or "") == stale.token:  # "": a lock file that does not parse
+        if _token(moved) == stale.token:
             return True
-        with contextlib.suppress(FileExistsError):
+        with contextlib.suppress(FileExistsError, FileNotFoundError):  # not found: a live writer removed it
             os.link(moved, path)
         return False
     finally:
         moved.unlink(missing_ok=True)
 
 
-def read_holder_file(path: Path) -> str | None:
-    """The token of a lock file at ``path`` (None if unreadable)."""
-    try:
-        return str(json.loads(path.read_text())["token"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
+def _token(path: Path) -> str | None:
+    """The token of the lock file at ``path`` (``""`` when it does not parse), None when there is none."""
+    holder = _read_lock_file(path)
+    return None if holder is None else holder.token
 
 
 class RunLock:
@@ -256,8 +267,8 @@ class RunLock:
             reason = holder.gone()
             if reason is None:
                 raise RunLocked(
-                    f"{what}: {folder} is being written by {holder.describe()}; one writer at a time: wait for it, or "
-                    f"stop it (if it is gone, its lock is taken over once its heartbeat is {_age(STALE_SECONDS)} old)"
+                    f"{what}: {RunLocked.being_written(folder, holder)}; one writer at a time: wait for it, or stop it"
+                    f" (if it is gone, its lock is taken over once its heartbeat is {_age(STALE_SECONDS)} old)"
                 )
             if _take_over(path, holder):
                 print(f"warning: taking over the lock of {folder} from {holder.describe()}: {reason}", file=sys.stderr)
@@ -272,11 +283,12 @@ class RunLock:
         removed by hand is made again."""
         if self.lost is not None:
             return
-        token = read_holder_file(self.path)
-        if token is None and not self.path.exists() and _create(self.path, json.dumps(self.holder.to_json())):
-            return
-        if read_holder_file(self.path) != self.holder.token:
-            holder = read_holder(self.folder)
+        holder = read_holder(self.folder)
+        if holder is None:
+            if _create(self.path, json.dumps(self.holder.to_json())):
+                return
+            holder = read_holder(self.folder)  # another process made it meanwhile
+        if holder is None or holder.token != self.holder.token:
             by = "another process" if holder is None else holder.describe()
             self.lost = f"the lock of {self.folder} was taken over by {by} while this process trained it"
             return
@@ -288,7 +300,7 @@ class RunLock:
         self._stop.set()
         if self._thread is not threading.current_thread():
             self._thread.join(timeout=5)
-        if self.lost is None and read_holder_file(self.path) == self.holder.token:
+        if self.lost is None and _token(self.path) == self.holder.token:
             self.path.unlink(missing_ok=True)
 
 

@@ -15,9 +15,12 @@ import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
-from sgfd_zoo.algos import SGFD_ALGOS, is_sgfd
+from sgfd_zoo.algos import SGFD_ALGOS, hyperparams_entry, is_sgfd
 from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id
 
+DEFAULT_ENV = "SGFD/MT-walker-walk-v0"
+DEFAULT_ALGOS = ("sgfd_sac", "sac")  # SGFD and its Domain Randomisation baseline
+EVAL_EPISODES = 8  # episodes per split in the final evaluation: the tables
 # --short: a run length and final evaluation episodes for a job of a few minutes.
 SHORT_STEPS = 4_000
 SHORT_EVAL_EPISODES = 4
@@ -27,14 +30,8 @@ CURVE_EPISODES = 4
 
 
 def quick_setting(algo: str, env_id: str, key: str) -> object:
-    """``key`` in the quick configuration of ``algo`` on ``env_id`` (its entry, else the file's default)."""
-    import yaml
-
-    from sgfd_zoo.experiment import hyperparams_file
-
-    path = hyperparams_file(algo, quick=True)
-    entries = yaml.safe_load(path.read_text())
-    return {**entries.get("default", {}), **entries.get(env_id, {})}.get(key)
+    """``key`` in the quick configuration of ``algo`` on ``env_id``, in the entry rl-zoo3 reads (None if unset)."""
+    return hyperparams_entry(algo, env_id, quick=True).get(key)
 
 
 def common_setting(algos: Sequence[str], env_id: str, key: str) -> object:
@@ -82,25 +79,27 @@ def check_run_lengths(folder: Path, algos: Sequence[str], env_id: str, n_timeste
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="sgfd-zoo quick", description=__doc__.replace("``", "`"))
-    parser.add_argument("--env", default="SGFD/MT-walker-walk-v0", help="a registered id (sgfd_envs.ENV_IDS)")
+    parser.add_argument("--env", default=DEFAULT_ENV, help="a registered id (sgfd_envs.ENV_IDS)")
     parser.add_argument(
         "--algos",
         nargs="+",
-        default=["sgfd_sac", "sac"],
+        default=list(DEFAULT_ALGOS),
         choices=sorted(SGFD_ALGOS),
         metavar="ALGO",
-        help=f"algorithm keys (default: sgfd_sac sac): {', '.join(SGFD_ALGOS)}",
+        help=f"algorithm keys (default: {' '.join(DEFAULT_ALGOS)}): {', '.join(SGFD_ALGOS)}",
     )
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1], help="seeds: the spread of the results")
     parser.add_argument(
         "-f", "--folder", type=Path, help="log folder (default: logs/quick, with --short logs/quick-short)"
     )
     length = parser.add_mutually_exclusive_group()
+    default_steps = common_setting(DEFAULT_ALGOS, DEFAULT_ENV, "n_timesteps")
     length.add_argument(
         "-n",
         "--n-timesteps",
         type=int,
-        help="steps per run (default: the quick configuration's, 20000); SGFD's classifier start moves with it",
+        help=f"steps per run (default: the quick configuration's, {default_steps} on {DEFAULT_ENV}); SGFD's "
+        "classifier start moves with it",
     )
     length.add_argument(
         "--short",
@@ -108,7 +107,9 @@ def main(argv: list[str]) -> int:
         help=f"-n {SHORT_STEPS} and --eval-episodes {SHORT_EVAL_EPISODES}: every part in a few minutes, too short "
         "to learn the task",
     )
-    parser.add_argument("--eval-episodes", type=int, help="episodes per split in the final evaluation (default: 8)")
+    parser.add_argument(
+        "--eval-episodes", type=int, help=f"episodes per split in the final evaluation (default: {EVAL_EPISODES})"
+    )
     parser.add_argument(
         "--curve-episodes",
         type=int,
@@ -126,7 +127,7 @@ def main(argv: list[str]) -> int:
 
     if args.short:
         args.n_timesteps = SHORT_STEPS
-    eval_episodes = args.eval_episodes or (SHORT_EVAL_EPISODES if args.short else 8)
+    eval_episodes = args.eval_episodes or (SHORT_EVAL_EPISODES if args.short else EVAL_EPISODES)
     n_timesteps = args.n_timesteps or int(common_setting(args.algos, args.env, "n_timesteps"))  # type: ignore[call-overload]
     folder = args.folder or Path("logs/quick-short" if args.short else "logs/quick")
     check_run_lengths(folder, args.algos, args.env, n_timesteps)

@@ -20,7 +20,8 @@ from typing import Any
 
 from sgfd_zoo import training
 from sgfd_zoo.arguments import TrainingStopped, ZooError
-from sgfd_zoo.locks import HEARTBEAT_SECONDS, STALE_SECONDS, read_holder
+from sgfd_zoo.config_checks import first_line
+from sgfd_zoo.locks import HEARTBEAT_SECONDS, STALE_SECONDS, live_holder
 from sgfd_zoo.progress import LiveView, ProgressBoard, progress_block, returns_text
 from sgfd_zoo.runs import NoUsableCheckpoint
 from sgfd_zoo.sweep_plan import Job
@@ -94,7 +95,7 @@ def _wait_for_lock(job: Job) -> None:
     """Until no live writer holds the run's lock, or for as long as a dead one's takes to go stale."""
     deadline = time.monotonic() + STALE_SECONDS + 2 * HEARTBEAT_SECONDS
     said = False
-    while (holder := read_holder(job.run_dir)) is not None and holder.gone() is None:
+    while (holder := live_holder(job.run_dir)) is not None:
         if time.monotonic() > deadline:
             return  # the train refuses it in one line
         if not said:
@@ -106,21 +107,31 @@ def _wait_for_lock(job: Job) -> None:
 @contextlib.contextmanager
 def _output_to(path: Path) -> Iterator[None]:
     """Send this process's stdout and stderr (file descriptors, so C libraries' output too) to ``path``."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = os.dup(1), os.dup(2)
     log = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     try:
-        os.dup2(log, 1)
-        os.dup2(log, 2)
+        with _descriptors_to(log, (1, 2)):
+            yield
+    finally:
+        os.close(log)
+
+
+@contextlib.contextmanager
+def _descriptors_to(target: int, descriptors: tuple[int, ...]) -> Iterator[None]:
+    """File ``descriptors`` (1: stdout, 2: stderr) made copies of descriptor ``target`` while the block runs, then
+    given back; Python's buffered streams are flushed at both ends, so no line lands on the wrong side."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(descriptor) for descriptor in descriptors]
+    try:
+        for descriptor in descriptors:
+            os.dup2(target, descriptor)
         yield
     finally:
         sys.stdout.flush()
         sys.stderr.flush()
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (log, *saved):
-            os.close(fd)
+        for descriptor, copy in zip(descriptors, saved, strict=True):
+            os.dup2(copy, descriptor)
+            os.close(copy)
 
 
 def _last_line(path: Path, tail: int = 4096) -> str:
@@ -182,15 +193,14 @@ class Liveness:
         if not now and time.monotonic() < self._next:
             return
         self._next = time.monotonic() + LIVENESS_INTERVAL
-        host, _, port = self.address.rpartition(":")
         try:
-            with socket.create_connection((host.strip("[]"), int(port)), timeout=LIVENESS_INTERVAL / 2):
-                self.failures = 0
-                return
+            _connect_once(self.address, timeout=LIVENESS_INTERVAL / 2)
         except OSError as error:
             self.failures += 1
             if self.failures >= LIVENESS_FAILURES or now:
                 raise ClusterLost(f"its head at {self.address} no longer answers ({error})") from None
+        else:
+            self.failures = 0
 
 
 def _wait_for(
@@ -295,45 +305,35 @@ def start_ray(args: argparse.Namespace) -> None:
         raise ZooError(f"--gpus-per-run {args.gpus_per_run:g}: Ray sees {gpus:g} GPUs on this machine")
 
 
-def _token_available() -> bool:
-    """Whether this machine has a Ray authentication token where Ray looks for one."""
-    if os.environ.get("RAY_AUTH_TOKEN"):
-        return True
-    path = os.environ.get("RAY_AUTH_TOKEN_PATH")
-    return Path(path).is_file() if path else (Path.home() / ".ray" / "auth_token").is_file()
-
-
 def _connect(address: str, quiet: dict[str, Any], show_ray_output: bool) -> None:
     """``ray.init(address=...)``, with Ray's token authentication when this machine has a token (a token sent to
     a cluster without authentication is ignored), and a failure as one line: authentication named as such,
     with its fix. Ray's own retries print a line a second to stderr: kept out of sight unless asked for."""
     import ray
+    from ray._private.authentication.authentication_token_setup import maybe_enable_token_auth_if_token_available
+    from ray._raylet import AuthenticationTokenLoader  # type: ignore[attr-defined]
 
     _check_reachable(address)
-    if "RAY_AUTH_MODE" not in os.environ and _token_available():
-        os.environ["RAY_AUTH_MODE"] = "token"  # as `ray start` does when it finds a token
-        with contextlib.suppress(ImportError, AttributeError):  # Ray reads its config once: read the mode again
-            from ray._raylet import Config  # type: ignore[attr-defined]
-
-            Config.initialize("")
     with tempfile.TemporaryFile("w+") as captured:
         try:
             with _stderr_to(None if show_ray_output else captured):
+                # What `ray start` does, and ray.init for a cluster it finds itself (not for an address it is
+                # given): token authentication where RAY_AUTH_MODE is unset and this machine has a token.
+                maybe_enable_token_auth_if_token_available(warn_if_disabled=False)
                 ray.init(address=address, **quiet)
             return
         except (ConnectionError, ValueError, RuntimeError, ray.exceptions.RayError) as error:
             captured.seek(0)
-            said = f"{error} {captured.read()}"
+            said, reason = f"{error} {captured.read()}", first_line(error)
     if "AuthToken" in said or "Unauthenticated" in said or "authentication" in said.lower():
-        has_token = _token_available()
+        has_token = AuthenticationTokenLoader.instance().has_token(ignore_auth_mode=True)
         raise ZooError(
             f"--address {address}: the Ray cluster requires token authentication and "
             + ("refused this machine's token" if has_token else "this machine has no token")
             + ": copy the cluster's token (`ray get-auth-token` on its head node) into ~/.ray/auth_token, or set "
             "RAY_AUTH_TOKEN (or RAY_AUTH_TOKEN_PATH) to it, then run the same command"
         ) from None
-    lines = [line.strip() for line in str(said).splitlines() if line.strip()]
-    raise ZooError(f"--address {address}: no Ray cluster to connect to ({lines[0] if lines else 'no reason'})")
+    raise ZooError(f"--address {address}: no Ray cluster to connect to ({reason})")
 
 
 @contextlib.contextmanager
@@ -342,15 +342,8 @@ def _stderr_to(handle: Any) -> Iterator[None]:
     if handle is None:
         yield
         return
-    sys.stderr.flush()
-    saved = os.dup(2)
-    os.dup2(handle.fileno(), 2)
-    try:
+    with _descriptors_to(handle.fileno(), (2,)):
         yield
-    finally:
-        sys.stderr.flush()
-        os.dup2(saved, 2)
-        os.close(saved)
 
 
 def _check_reachable(address: str, timeout: float = 10.0) -> None:
@@ -365,18 +358,21 @@ def _check_reachable(address: str, timeout: float = 10.0) -> None:
     if "://" in address or not host or not port.isdigit():
         return
     try:
-        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
-            pass
+        _connect_once(address, timeout)
     except OSError as error:
         raise ZooError(f"--address {address}: no Ray cluster answers there ({error})") from None
+
+
+def _connect_once(address: str, timeout: float) -> None:
+    """Open a TCP connection to ``host:port`` (an IPv6 host in brackets) and close it; an OSError when none opens
+    within ``timeout`` seconds."""
+    host, _, port = address.rpartition(":")
+    with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
+        pass
 
 
 def _reason(error: Exception) -> str:
     """One line for the summary: the run's own exception when it raised one, else what Ray says."""
     cause = getattr(error, "cause", None)
-    if isinstance(cause, BaseException):
-        text, name = str(cause), type(cause).__name__
-    else:
-        text, name = str(error), type(error).__name__
-    lines = [line.strip() for line in text.splitlines() if line.strip()]
-    return f"{name}: {lines[0] if lines else '(no message)'}"
+    shown = cause if isinstance(cause, BaseException) else error
+    return f"{type(shown).__name__}: {first_line(shown)}"

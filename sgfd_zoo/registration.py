@@ -1,10 +1,9 @@
-"""The zoo's algorithms in rl-zoo3's tables: each key's class, its yaml, and its Optuna search space for
-``sgfd-zoo optimize`` (SGFD's agents: rl-zoo3's SAC space plus SGFD's own settings; the others: rl-zoo3's SAC
-space)."""
+"""The zoo's algorithms in rl-zoo3's tables: each key's class and its Optuna search space for ``sgfd-zoo
+optimize`` (SGFD's agents: a narrower SAC space plus SGFD's own settings, :func:`sample_sgfd_sac_params`; the
+others: rl-zoo3's SAC space)."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import optuna
@@ -14,18 +13,6 @@ from rl_zoo3.utils import ALGOS
 from sb3_sgfd import SGFD_SAC
 from sgfd_zoo.algos import SGFD_ALGOS
 
-HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
-
-
-def hyperparams_file(algo: str, quick: bool = False) -> Path:
-    """The zoo's yaml for ``algo``: paper scale, or the quick configuration for a laptop-size run."""
-    if algo not in SGFD_ALGOS:
-        return HYPERPARAMS_DIR / ("quick" if quick else "") / f"{algo}.yml"
-    entry = SGFD_ALGOS[algo]
-    if quick:
-        return HYPERPARAMS_DIR / "quick" / f"{entry.quick_hyperparams or entry.hyperparams}.yml"
-    return HYPERPARAMS_DIR / f"{entry.hyperparams}.yml"
-
 
 def register_algorithms() -> None:
     """Add SGFD's keys to rl-zoo3's tables; idempotent. The other agents take rl-zoo3's SAC search space."""
@@ -33,7 +20,7 @@ def register_algorithms() -> None:
         ALGOS[key] = algo.algo_class
         if algo.algo_class is SGFD_SAC:
             HYPERPARAMS_SAMPLER[key] = sample_sgfd_sac_params
-            HYPERPARAMS_CONVERTER[key] = convert_sgfd_sac_params
+            HYPERPARAMS_CONVERTER[key] = convert_offpolicy_params  # also loads a stored trial
         elif key != "sac":
             HYPERPARAMS_SAMPLER[key] = HYPERPARAMS_SAMPLER["sac"]
             HYPERPARAMS_CONVERTER[key] = HYPERPARAMS_CONVERTER["sac"]
@@ -42,7 +29,11 @@ def register_algorithms() -> None:
 def sample_sgfd_sac_params(
     trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]
 ) -> dict[str, Any]:
-    """SAC's search space (as rl-zoo3 samples it) plus SGFD's classifier and weight-solver settings."""
+    """
+    A SAC search space in rl-zoo3's parameter names, turned into arguments by rl-zoo3's off-policy conversion,
+    plus SGFD's classifier and weight-solver settings. Not rl-zoo3's ``sample_sac_params``: its ranges (below)
+    are narrower, and it samples no ``train_freq``, so the yaml's train_freq and gradient_steps stay.
+    """
     sampled = {
         "one_minus_gamma": trial.suggest_float("one_minus_gamma", 0.0001, 0.03, log=True),
         "learning_rate": trial.suggest_float("learning_rate", 1e-4, 3e-3, log=True),
@@ -56,9 +47,4 @@ def sample_sgfd_sac_params(
         "saliency_temperature": trial.suggest_float("saliency_temperature", 0.05, 2.0, log=True),
         "saliency_smoothing": trial.suggest_float("saliency_smoothing", 0.0, 0.7),
     }
-    return convert_sgfd_sac_params(sampled)
-
-
-def convert_sgfd_sac_params(sampled_params: dict[str, Any]) -> dict[str, Any]:
-    """Turn Optuna's sampled values into SGFD_SAC arguments (also used to load a stored trial)."""
-    return convert_offpolicy_params(sampled_params)
+    return convert_offpolicy_params(sampled)

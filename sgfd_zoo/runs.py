@@ -4,7 +4,8 @@
         <EnvName>.zip                           the final model
         finished.json                           written after the final model: the run is finished
         <EnvName>/args.yml, config.yml          rl-zoo3's saved arguments and hyperparameters
-        <EnvName>/command.txt                   the ``sgfd-zoo train`` command of its latest start
+        <EnvName>/command.txt                   the ``sgfd-zoo train`` command of its latest start (quoted as
+                                                a shell reads it; earlier versions kept the flags in command.json)
         <EnvName>/versions.txt                  what trained it (:mod:`sgfd_zoo.provenance`), a block per start
         evaluations_<split>.npz                 evaluations during training, per split
         progress.csv, progress_from_<n>.csv     everything logged (a resumed run continues in a new file)
@@ -156,13 +157,27 @@ class RunFolder(NamedRun):
 
     @property
     def command_file(self) -> Path:
-        """The ``sgfd-zoo train`` flags the run was last started or resumed with (JSON), to say how it goes on."""
+        """The ``sgfd-zoo train`` command the run was last started or resumed with, to say how it goes on."""
+        return self.config_dir / "command.txt"
+
+    @property
+    def legacy_command_file(self) -> Path:
+        """Where runs of earlier versions kept their ``sgfd-zoo train`` flags (a JSON list) beside a
+        ``command.txt`` that rl-zoo3 wrote (the process's command line, unquoted; a sweep's: Ray's worker's)."""
         return self.path / "command.json"
 
     def train_argv(self) -> list[str] | None:
-        """Those flags; None for a run that did not record them (older runs) or whose file is unreadable."""
+        """The flags after ``sgfd-zoo train`` of the run's latest recorded start, from :attr:`command_file`, or
+        in a run of an earlier version from :attr:`legacy_command_file`; None for a run that recorded neither
+        (version 0.1.0's runs) or whose files are unreadable."""
         try:
-            argv = read_json(self.command_file)
+            command = shlex.split(self.command_file.read_text())
+        except (OSError, ValueError):
+            command = []
+        if command[:2] == ["sgfd-zoo", "train"]:
+            return command[2:]
+        try:
+            argv = read_json(self.legacy_command_file)
         except UnreadableFile:
             return None
         return [str(arg) for arg in argv] if isinstance(argv, list) else None
@@ -174,13 +189,15 @@ class RunFolder(NamedRun):
     def record_start(self, config: dict[str, Any], args: dict[str, Any], argv: list[str] | None, step: int) -> None:
         """What a start (or resume) of the run writes beside its model, each file whole: rl-zoo3's ``config.yml``
         and ``args.yml`` (with ``stand_in``: the splits that run on a built-in stand-in of a benchmark's data, so no
-        number of theirs passes for the benchmark's), the ``sgfd-zoo train`` command (``command.txt``, and its
-        flags in ``command.json``, which ``sgfd-zoo evaluate`` prints to continue the run), and a block of
-        ``versions.txt`` (appended: a resumed run's later steps may come from other code).
+        number of theirs passes for the benchmark's), the ``sgfd-zoo train`` command (``command.txt``, which
+        ``sgfd-zoo evaluate`` reads to print the command that continues the run; an earlier version's
+        ``command.json`` it replaces is removed), and a block of ``versions.txt`` (appended: a resumed run's later
+        steps may come from other code).
 
         :param config: the hyperparameters as rl-zoo3 saves them
         :param args: rl-zoo3's arguments
-        :param argv: the ``sgfd-zoo train`` flags of this process (a sweep's run too: its process is a Ray worker)
+        :param argv: the ``sgfd-zoo train`` flags of this process (a sweep's run too: its process is a Ray worker);
+            None where they are unknown (a manager built in Python): no command is recorded
         :param step: the step the run starts from
         """
         self.config_dir.mkdir(parents=True, exist_ok=True)
@@ -192,10 +209,10 @@ class RunFolder(NamedRun):
         args = {**args, "stand_in": {label: what for label, what in stand_ins.items() if what is not None}}
         atomic_write(self.config_dir / "config.yml", lambda tmp: Path(tmp).write_text(yaml.dump(config)))
         atomic_write(self.config_dir / "args.yml", lambda tmp: Path(tmp).write_text(yaml.dump(args)))
-        command = shlex.join(["sgfd-zoo", "train", *(argv or [])]) + "\n"
-        atomic_write(self.config_dir / "command.txt", lambda tmp: Path(tmp).write_text(command))
         if argv is not None:
-            write_json(self.command_file, argv)
+            command = shlex.join(["sgfd-zoo", "train", *argv]) + "\n"
+            atomic_write(self.command_file, lambda tmp: Path(tmp).write_text(command))
+            self.legacy_command_file.unlink(missing_ok=True)
         block = f"=== from step {step}, {time.strftime('%Y-%m-%d %H:%M:%S')}\n{provenance.versions()}"
         earlier = self.versions_file.read_text() if self.versions_file.exists() else ""
         atomic_write(self.versions_file, lambda tmp: Path(tmp).write_text(earlier + block))

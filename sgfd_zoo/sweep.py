@@ -33,6 +33,7 @@ import sgfd_envs  # before anything imports dm_control: it picks MuJoCo's headle
 from sgfd_zoo import evaluate, training
 from sgfd_zoo.algos import SGFD_ALGOS
 from sgfd_zoo.arguments import ZooError, check_log_folder, checked_names, flag_value, has_flag
+from sgfd_zoo.exit_codes import INTERRUPTED
 from sgfd_zoo.ray_runs import ClusterLost, run_jobs
 from sgfd_zoo.runs import find_runs
 from sgfd_zoo.sweep_plan import Job, locked_runs, plan
@@ -175,7 +176,7 @@ def main(argv: list[str], recorded: Collection[tuple[str, str, int | None]] = ()
             print(
                 f"\nsweep: interrupted; the same command resumes it (unfinished runs from their checkpoints): {rerun}"
             )
-            return 130
+            return INTERRUPTED
         except ClusterLost as error:
             lost = f"the Ray cluster{'' if args.address is None else f' at {args.address}'} went away: {error}"
     if lost is None and not args.no_evaluate:

@@ -7,7 +7,7 @@ from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from sgfd_zoo.locks import read_holder
+from sgfd_zoo.locks import RunLocked, live_holder
 from sgfd_zoo.runs import RunFolder, find_runs, runs_by_id
 
 
@@ -128,9 +128,6 @@ def locked_runs(jobs: Sequence[Job]) -> list[tuple[Job, str]]:
     """
     locked = []
     for job in jobs:
-        holder = read_holder(job.run_dir)
-        if holder is not None and holder.gone() is None:
-            locked.append(
-                (job, f"refused: {job.run_dir} is being written by {holder.describe()} (one writer at a time)")
-            )
+        if (holder := live_holder(job.run_dir)) is not None:
+            locked.append((job, f"refused: {RunLocked.being_written(job.run_dir, holder)} (one writer at a time)"))
     return locked

@@ -18,7 +18,15 @@ from pathlib import Path
 from typing import Any
 
 from sgfd_zoo.algos import SGFD_ALGOS
-from sgfd_zoo.arguments import ZooError, check_env_id, check_log_folder, flag_value, has_flag, without_flags
+from sgfd_zoo.arguments import (
+    ZooError,
+    check_at_least,
+    check_env_id,
+    check_log_folder,
+    flag_value,
+    has_flag,
+    without_flags,
+)
 
 MAX_SEED = 2**32 - 1  # numpy's limit, which rl-zoo3 seeds with
 # The zoo's own flags: not rl-zoo3's, taken out before its parser sees the command line.
@@ -105,16 +113,12 @@ def train_parser(prog: str, optimize: bool = False) -> argparse.ArgumentParser:
 
 def check_run_arguments(args: argparse.Namespace) -> None:
     """The values the zoo checks itself, each refused in one line naming the flag, the value and what fits."""
-    if args.n_timesteps is not None and args.n_timesteps < 1:
-        raise ZooError(f"-n {args.n_timesteps}: expected a number of steps >= 1 (leave -n out for the configuration's)")
+    check_at_least("-n", args.n_timesteps, 1)
     if not (args.seed == -1 or 0 <= args.seed <= MAX_SEED):
         raise ZooError(f"--seed {args.seed}: expected 0..{MAX_SEED}, or -1 for a random seed")
-    if args.eval_episodes < 1:
-        raise ZooError(f"--eval-episodes {args.eval_episodes}: expected at least 1 episode")
-    if args.classifier_start is not None and args.classifier_start < 0:
-        raise ZooError(f"--classifier-start {args.classifier_start}: expected a number of steps >= 0")
-    if args.run_id is not None and args.run_id < 0:
-        raise ZooError(f"--run-id {args.run_id}: expected a run number >= 0")
+    check_at_least("--eval-episodes", args.eval_episodes, 1)
+    check_at_least("--classifier-start", args.classifier_start, 0)
+    check_at_least("--run-id", args.run_id, 0)
     check_log_folder("-f", Path(args.log_folder))
 
 
@@ -188,6 +192,7 @@ def enjoy(argv: Sequence[str]) -> int:
     watches the newest finished run (rl-zoo3's newest folder may be a run still training or stopped)."""
     import rl_zoo3.enjoy
 
+    from sgfd_zoo.config_checks import first_line
     from sgfd_zoo.experiment import register_algorithms
     from sgfd_zoo.runs import select_run
 
@@ -211,8 +216,7 @@ def enjoy(argv: Sequence[str]) -> int:
                 f"change obs_type, image_size or observe_parameter; split:'...' and domain:... are fine): {error}"
             ) from None
         # Otherwise what rl-zoo3 and the env refuse: no model in the folder, an env kwarg the id does not take.
-        lines = [line.strip() for line in str(error).splitlines() if line.strip()]
-        raise ZooError(lines[0] if lines else repr(error)) from None
+        raise ZooError(first_line(error)) from None
     return 0
 
 

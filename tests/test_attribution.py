@@ -217,7 +217,7 @@ def test_mask_keeps_ties_at_the_threshold():
         ({"quantile": 0}, ValueError, "quantile"),
         ({"quantile": True}, ValueError, "quantile"),
         ({"channels_per_frame": 4}, ValueError, "not divisible by channels_per_frame=4"),
-        ({"channels_per_frame": 0}, ValueError, "channels_per_frame must be an int >= 1"),
+        ({"channels_per_frame": 0}, ValueError, "channels_per_frame must be a positive integer"),
         ({"attribution": torch.zeros(1, 3, 0, 4)}, ValueError, "at least one pixel"),
     ],
 )
@@ -400,10 +400,10 @@ def test_decoder_learns_a_fixed_mask():
 @pytest.mark.parametrize(
     ("args", "match"),
     [
-        ((0, 2, (3, 8, 8)), "features_dim must be an int >= 1"),
-        ((4, 2.0, (3, 8, 8)), "action_dim must be an int >= 1"),
+        ((0, 2, (3, 8, 8)), "features_dim must be a positive integer"),
+        ((4, 2.0, (3, 8, 8)), "action_dim must be a positive integer"),
         ((4, 2, (8, 8)), r"image_shape must be \(C, H, W\)"),
-        ((4, 2, (3, 0, 8)), "every entry of image_shape"),
+        ((4, 2, (3, 0, 8)), r"image_shape\[1\] must be a positive integer"),
     ],
 )
 def test_decoder_rejects_bad_sizes(args, match):

@@ -10,8 +10,9 @@ import yaml
 
 import sgfd_envs
 from sgfd_envs.registry import task_entry
+from sgfd_zoo.algos import hyperparams_file
 from sgfd_zoo.arguments import check_env_id
-from sgfd_zoo.experiment import SGFDExperimentManager, hyperparams_file, register_algorithms
+from sgfd_zoo.experiment import SGFDExperimentManager, register_algorithms
 from sgfd_zoo.runs import RunFolder
 
 BENCHMARK_IDS = [env_id for ids in sgfd_envs.BENCHMARK_IDS.values() for env_id in ids]

@@ -6,7 +6,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 
-from sb3_sgfd.common.buffers import DomainReplayBuffer, DomainReplayBufferSamples
+from sb3_sgfd.common.buffers import DomainDictReplayBuffer, DomainReplayBuffer, DomainReplayBufferSamples
 
 OBS_SPACE = spaces.Box(-1e6, 1e6, shape=(3,), dtype=np.float32)
 ACTION_SPACE = spaces.Box(-1, 1, shape=(2,), dtype=np.float32)
@@ -108,5 +108,46 @@ def test_bad_data_is_refused_at_add_and_nothing_of_it_is_stored(field, match, fr
     before = (buffer.pos, buffer.rewards.copy(), buffer.domains.copy())
     with pytest.raises(ValueError, match=match):
         buffer.add(obs, next_obs, action, reward, np.zeros(2), [{"domain": label} for label in labels])
+    assert buffer.pos == before[0] and np.array_equal(buffer.rewards, before[1])
+    assert np.array_equal(buffer.domains, before[2])
+
+
+@pytest.mark.parametrize(
+    ("field", "match"),
+    [
+        ("velocity", r"non-finite observation \(nan\) at add 3 \(sub-env 1, domain 2\)"),
+        ("next_velocity", r"non-finite next observation \(inf\) at add 3 \(sub-env 1, domain 2\)"),
+        ("action", r"non-finite action \(nan\) at add 3 \(sub-env 1, domain 2\)"),
+        ("reward", r"non-finite reward \(-inf\) at add 3 \(sub-env 1, domain 2\)"),
+        ("label", r"domain label 5 from info\['domain'\] at add 3 \(sub-env 1, domain 5\).*n_domains=4"),
+    ],
+)
+def test_dict_buffer_refuses_bad_data_in_any_key_at_add_and_stores_nothing_of_it(field, match):
+    space = spaces.Dict({"pixels": spaces.Box(0, 255, (2, 2), np.uint8), "position": OBS_SPACE, "velocity": OBS_SPACE})
+    buffer = DomainDictReplayBuffer(16, space, ACTION_SPACE, device="cpu", n_envs=2, n_domains=4)
+
+    def observation():
+        return {key: np.zeros((2, *part.shape), dtype=part.dtype) for key, part in space.spaces.items()}
+
+    def add(obs, next_obs, action, reward, labels):
+        buffer.add(obs, next_obs, action, reward, np.zeros(2), [{"domain": label} for label in labels])
+
+    for _ in range(3):
+        add(observation(), observation(), np.zeros((2, 2), np.float32), np.zeros(2, np.float32), [0, 2])
+    obs, next_obs = observation(), observation()
+    action, reward, labels = np.zeros((2, 2), dtype=np.float32), np.zeros(2, dtype=np.float32), [0, 2]
+    if field == "velocity":
+        obs["velocity"][1, 2] = np.nan
+    elif field == "next_velocity":
+        next_obs["velocity"][1, 0] = np.inf
+    elif field == "action":
+        action[1, 1] = np.nan
+    elif field == "reward":
+        reward[1] = -np.inf
+    else:
+        labels = [0, 5]
+    before = (buffer.pos, buffer.rewards.copy(), buffer.domains.copy())
+    with pytest.raises(ValueError, match=match):
+        add(obs, next_obs, action, reward, labels)
     assert buffer.pos == before[0] and np.array_equal(buffer.rewards, before[1])
     assert np.array_equal(buffer.domains, before[2])

@@ -25,16 +25,40 @@ def rows_of(table: Path) -> list[str]:
     return [line for line in table.read_text().splitlines() if line.startswith("| ") and "---" not in line][1:]
 
 
-def test_the_parts_time_limits_add_up_to_the_checks_eight_minutes():
+def limits_the_parts_run_with(check, budgets: dict[str, float], smoke: bool, monkeypatch) -> list[tuple[str, float]]:
+    """Every part run as the check runs it, each subprocess replaced by a record of (its command, its limit)."""
+    calls: list[tuple[str, float]] = []
+
+    def record(command: list[str], budget: float) -> tuple[int, str, float]:
+        calls.append((" ".join(command), budget))
+        return 0, "", 0.0
+
+    monkeypatch.setattr(check, "run", record)
+    for part in check.PARTS:
+        list(part(budgets, smoke))
+    return calls
+
+
+def test_the_parts_time_limits_add_up_to_the_checks_worst_case():
     check = device_check()
-    assert check.TOTAL_SECONDS == 8 * 60
     assert sum(check.BUDGETS.values()) + check.OWN_SECONDS <= check.TOTAL_SECONDS
-    # every part's limit is used by a part (a limit no part reads would not bound anything)
-    source = (REPO / "bench" / "device_check.py").read_text()
-    assert all(kind in source for kind in ('budgets["cuda"]', 'budgets["throughput"]', 'f"overhead {label}"'))
     assert set(check.BUDGETS) == {"cuda", "throughput", "learning sgfd_sac", "learning ambs"} | {
         f"overhead {policy}" for policy in ("mlp", "cnn", "agents")
     }
+
+
+@pytest.mark.parametrize("smoke", [False, True])
+def test_every_part_runs_with_its_own_limit(smoke, monkeypatch):
+    check = device_check()
+    names = list(check.SMOKE_BUDGETS if smoke else check.BUDGETS)
+    # distinct limits, so that each subprocess's limit says which entry it came from
+    budgets = {name: 1000.0 + index for index, name in enumerate(names)}
+    calls = limits_the_parts_run_with(check, budgets, smoke, monkeypatch)
+    # each limit bounds exactly one subprocess, and that subprocess is its part's (every word of the name in it)
+    assert sorted(budget for _, budget in calls) == sorted(budgets.values())
+    command_of = {budget: command for command, budget in calls}
+    for name, budget in budgets.items():
+        assert all(word in command_of[budget] for word in name.split()), (name, command_of[budget])
 
 
 def test_a_check_stopped_from_outside_keeps_the_rows_it_measured(tmp_path):

@@ -17,10 +17,8 @@ Every run is the quick configuration of SAC on states, cut to a few hundred step
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import functools
-import io
 import json
 import os
 import random
@@ -40,33 +38,14 @@ import ray
 import stable_baselines3.common.base_class
 import stable_baselines3.common.off_policy_algorithm
 from stable_baselines3.common.save_util import load_from_pkl
+from zoo_runs import ENV_ID, NAME, SETTINGS, TINY_PARAMS, Training, has_checkpoint, train_args, zoo
 
 import sgfd_envs.dmc
 from sgfd_zoo import sweep, training
-from sgfd_zoo.checkpoints import read_index
+from sgfd_zoo.checkpoints import read_index, remove_checkpoint_files
 from sgfd_zoo.cli import main as zoo_main
+from sgfd_zoo.locks import LOCK_FILE, RunLock
 from sgfd_zoo.runs import FINISHED_MARKER, RunFolder
-
-ENV_ID = "SGFD/MT-walker-walk-v0"
-NAME = "SGFD-MT-walker-walk-v0"
-SETTINGS = ["--quick", "--num-threads", "1", "--no-progress", "--verbose", "0", "--eval-freq", "-1"]
-# One update per env step (of the 4 sub-envs), from step 100.
-TINY_PARAMS = ["learning_starts:100", "gradient_steps:1", "batch_size:64", "policy_kwargs:dict(net_arch=[32])"]
-SETTINGS += ["-params", *TINY_PARAMS, "buffer_size:2000"]
-
-
-def train_args(folder: Path, *extra: str, steps: int = 400, save_freq: int = 200) -> list[str]:
-    """``sgfd-zoo train`` of a tiny SAC run into ``folder``, with checkpoints every ``save_freq`` steps."""
-    args = ["train", "--algo", "sac", "--env", ENV_ID, "--seed", "0", "-f", str(folder), *SETTINGS]
-    return [*args, "-n", str(steps), "--save-freq", str(save_freq), *extra]
-
-
-def zoo(args: list[str]) -> tuple[int, str, list[str]]:
-    """``sgfd-zoo`` in this process: exit code, stdout, and the lines of stderr."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = zoo_main(args)
-    return code, out.getvalue(), [line for line in err.getvalue().splitlines() if line.strip()]
 
 
 def printed_command(line: str, after: str) -> list[str]:
@@ -301,48 +280,6 @@ def test_a_full_disk_during_the_final_save_leaves_the_run_unfinished_and_resumab
 # -- signals --------------------------------------------------------------------------------------------------
 
 
-class Training:
-    """``sgfd-zoo train`` in a subprocess, its output in files.
-
-    :param args: its arguments
-    :param folder: where its output goes
-    """
-
-    def __init__(self, args: list[str], folder: Path):
-        folder.mkdir(parents=True, exist_ok=True)
-        self.out, self.err = folder / "stdout.txt", folder / "stderr.txt"
-        with self.out.open("w") as out, self.err.open("w") as err:
-            self.process = subprocess.Popen([sys.executable, "-m", "sgfd_zoo.cli", *args], stdout=out, stderr=err)
-
-    def wait_until(self, condition: Callable[[], bool], timeout: float = 300, poll: float = 0.005) -> None:
-        deadline = time.monotonic() + timeout
-        while not condition():
-            assert self.process.poll() is None, f"ended early:\n{self.err.read_text()[-3000:]}"
-            assert time.monotonic() < deadline, "timed out"
-            time.sleep(poll)
-
-    def send(self, signum: int, times: int = 1) -> int:
-        for _ in range(times):
-            self.process.send_signal(signum)
-            time.sleep(0.02)
-        return self.process.wait(timeout=300)
-
-    def last_error(self) -> str:
-        lines = [line for line in self.err.read_text().splitlines() if line.strip()]
-        assert not any("Traceback" in line for line in lines), self.err.read_text()[-3000:]
-        return lines[-1]
-
-
-def has_checkpoint(run: Path, after: int = 0) -> Callable[[], bool]:
-    def check() -> bool:
-        try:
-            return bool(read_index(run)) and read_index(run)[0].num_timesteps > after
-        except Exception:  # not there yet, or being replaced
-            return False
-
-    return check
-
-
 @pytest.mark.slow
 def test_ctrl_c_stops_a_fresh_and_a_resumed_run_at_a_checkpoint(tmp_path: Path) -> None:
     logs = tmp_path / "logs"
@@ -452,6 +389,33 @@ def test_signals_at_random_points_leave_a_finished_or_a_resumable_run(tmp_path: 
         code, _out, err = zoo(train_args(logs, *resume))
         assert code == 0, f"{where}: {err}"
         assert_finished(run, 400)
+
+
+KILLED_TAKING_THE_LOCK = """
+import os, signal, sys
+from pathlib import Path
+from sgfd_zoo.locks import RunLock
+os.link = lambda *_: os.kill(os.getpid(), signal.SIGKILL)  # killed between writing its lock file and linking it
+RunLock.acquire(Path(sys.argv[1]))
+"""
+
+
+def test_a_lock_file_left_by_a_process_killed_taking_the_lock_is_seen_and_removed_by_the_writer(
+    tmp_path: Path,
+) -> None:
+    run = tmp_path / "run"
+    run.mkdir()
+    killed = subprocess.run([sys.executable, "-c", KILLED_TAKING_THE_LOCK, str(run)], capture_output=True, timeout=120)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr.decode()[-2000:]
+    left = leftovers(run)
+    assert len(left) == 1 and left[0].endswith(f"-{LOCK_FILE}"), sorted(path.name for path in run.iterdir())
+
+    lock = RunLock.acquire(run)  # the next writer; its checkpoints remove what interrupted writes left
+    try:
+        assert remove_checkpoint_files(run, []) == left and leftovers(run) == []
+    finally:
+        lock.release()
+    assert list(run.iterdir()) == []
 
 
 # -- partial final models ------------------------------------------------------------------------------------

@@ -146,13 +146,20 @@ def stored_pairs(buffer: DomainReplayBuffer, n_steps: int) -> tuple[np.ndarray, 
 def assert_same_samples(expected: Any, got: Any) -> None:
     for name in FIELDS:
         assert th.equal(getattr(expected, name), getattr(got, name)), name
+    assert (expected.discounts is None) == (got.discounts is None)
+    if expected.discounts is not None:
+        assert th.equal(expected.discounts, got.discounts), "discounts"
 
 
-def make_pair(slots: int, n_envs: int, n_stack: int, channels: int) -> tuple[DomainReplayBuffer, DomainReplayBuffer]:
-    """A plain buffer and a frame buffer of ``slots`` slots per env for HxW frames of ``channels`` channels."""
+def make_pair(
+    slots: int, n_envs: int, n_stack: int, channels: int, returns: int = 1
+) -> tuple[DomainReplayBuffer, DomainReplayBuffer]:
+    """A plain buffer and a frame buffer of ``slots`` slots per env for HxW frames of ``channels`` channels, with
+    ``returns``-step returns."""
     space = spaces.Box(0, 255, shape=(n_stack * channels, HEIGHT, WIDTH), dtype=np.uint8)
-    plain = DomainReplayBuffer(slots * n_envs, space, ACTION_SPACE, device="cpu", n_envs=n_envs)
-    framed = DomainReplayBuffer(slots * n_envs, space, ACTION_SPACE, device="cpu", n_envs=n_envs, frame_stack=n_stack)
+    common = dict(device="cpu", n_envs=n_envs, n_steps=returns, gamma=0.9)
+    plain = DomainReplayBuffer(slots * n_envs, space, ACTION_SPACE, **common)
+    framed = DomainReplayBuffer(slots * n_envs, space, ACTION_SPACE, frame_stack=n_stack, **common)
     return plain, framed
 
 
@@ -168,6 +175,8 @@ def scenarios(draw: st.DrawFn) -> dict[str, Any]:
         # One slot per env (the newest transition overwrites the previous one) gets its own chance.
         "slots": draw(st.one_of(st.just(1), st.integers(1, 12))),
         "n_steps": n_steps,
+        # n-step returns (SAC's n_steps): the next observation is the last one of the return's
+        "returns": draw(st.sampled_from([1, 3])),
         "plans": [
             draw(st.lists(st.tuples(st.integers(1, 12), st.booleans()), min_size=1, max_size=4)) for _ in range(n_envs)
         ],
@@ -181,7 +190,7 @@ def scenarios(draw: st.DrawFn) -> dict[str, Any]:
 @given(scenarios())
 def test_frame_buffer_rebuilds_what_the_plain_buffer_stores(case: dict[str, Any]) -> None:
     n_envs, n_stack = case["n_envs"], case["n_stack"]
-    plain, framed = make_pair(case["slots"], n_envs, n_stack, case["channels"])
+    plain, framed = make_pair(case["slots"], n_envs, n_stack, case["channels"], case["returns"])
     plans, seed, frames = case["plans"], case["seed"], case["frames"]
     plain, framed, since = drive(
         plain,

@@ -25,6 +25,7 @@ ALGOS = {
     "sac": SAC,
     "sgfd_sac": SGFD_SAC,
     "sgfd_sac_official": SGFD_SAC,
+    "sgfd_sac_ready": SGFD_SAC,
     "sgfd_sac_ambs": SGFD_SAC,
     "ambs": AMBS,
     "dbc": DBC,
@@ -50,6 +51,17 @@ def test_sgfd_settings_of_a_version_0_1_0_model_are_its_own():
     assert official.sgfd.classifier_interval == 4 and official.sgfd.reweight_memory == 0.9
     assert paper.sgfd.classifier_start == official.sgfd.classifier_start == 60
     assert type(official.weighting).__name__ == "OfficialWeighting"
+
+
+def test_the_weighting_state_of_a_version_0_1_0_model_is_restored():
+    # what version 0.1.0 saved as the weighting's extra state: the official reading's memory after 9 updates,
+    # the paper reading's flag (its classifier had reached the threshold in sgfd_sac_ready, not in sgfd_sac)
+    memory = SGFD_SAC.load(LEGACY / "sgfd_sac_official.zip", device="cpu").weighting.memory
+    assert memory.updates == 9
+    assert memory.features is not None and memory.features.shape == (16, 25)
+    assert memory.logits is not None and memory.logits.shape == (16,)
+    assert SGFD_SAC.load(LEGACY / "sgfd_sac_ready.zip", device="cpu").weighting.ready is True
+    assert SGFD_SAC.load(LEGACY / "sgfd_sac.zip", device="cpu").weighting.ready is False
 
 
 @pytest.mark.parametrize("name", ["sac", "sgfd_sac", "sgfd_sac_official", "ambs", "ted"])

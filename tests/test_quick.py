@@ -6,19 +6,23 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import json
 import shlex
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
-from sgfd_zoo import quick
+from sgfd_zoo import algos, quick
 from sgfd_zoo.algos import classifier_start_warning
 from sgfd_zoo.arguments import ZooError
 from sgfd_zoo.cli import main as zoo_main
 from sgfd_zoo.plot import draw_env, load_curves
 from sgfd_zoo.runs import FINISHED_MARKER, RunFolder
 
+REPO = Path(__file__).resolve().parents[1]
 ENV_ID = "SGFD/MT-walker-walk-v0"
 NAME = "SGFD-MT-walker-walk-v0"
 TINY = ["--quick", "--num-threads", "1", "--no-progress", "--verbose", "0", "--save-freq", "100"]
@@ -56,6 +60,24 @@ def test_the_quick_jobs_length_moves_sgfds_classifier_start_in_proportion():
     assert quick.scaled_classifier_start(["sgfd_sac_official", "sac"], ENV_ID, quick.SHORT_STEPS) == 800
     assert quick.scaled_classifier_start(["sgfd_sac", "sac"], ENV_ID, 20000) is None  # the configuration's own
     assert quick.scaled_classifier_start(["sac"], ENV_ID, 3000) is None
+
+
+def test_the_quick_settings_are_the_entry_rl_zoo3_reads_and_load_no_agent(tmp_path, monkeypatch):
+    code = (
+        "import json, sys\nfrom sgfd_zoo.quick import quick_setting\n"
+        f"quick_setting('sgfd_sac', {ENV_ID!r}, 'n_timesteps')\n"
+        "print(json.dumps([m for m in ('torch', 'stable_baselines3', 'rl_zoo3', 'optuna') if m in sys.modules]))"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert json.loads(result.stdout.splitlines()[-1]) == []
+    # rl-zoo3 takes the env id's entry whole (not merged into "default"), else "default"
+    (tmp_path / "quick").mkdir()
+    (tmp_path / "quick" / "sac.yml").write_text("default: {a: 1, b: 2}\nSome/id-v0: {a: 3}\n")
+    monkeypatch.setattr(algos, "HYPERPARAMS_DIR", tmp_path)
+    assert quick.quick_setting("sac", "Some/id-v0", "a") == 3
+    assert quick.quick_setting("sac", "Some/id-v0", "b") is None
+    assert quick.quick_setting("sac", "Other/id-v0", "b") == 2
 
 
 def test_train_takes_the_classifier_start_for_sgfd_and_a_sweep_may_mix_in_sac(tmp_path):

@@ -5,17 +5,20 @@ train with MultiInputPolicy where the agent reads them, and are refused in one l
 
 from __future__ import annotations
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.buffers import NStepReplayBuffer
+from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import NStepReplayBuffer, ReplayBuffer
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, VecFrameStack, VecTransposeImage
 
 import sgfd_envs
-from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, DomainReplayBuffer
+from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, DomainReplayBuffer, EncoderSAC, MlpPolicy
 from sb3_sgfd.common.buffers import DomainDictReplayBuffer
 
 TINY = dict(learning_starts=30, batch_size=8, buffer_size=300, seed=0)
@@ -130,14 +133,15 @@ def test_images_already_scaled_need_normalize_images_false_as_sb3_says():
 
 
 def n_step_batches(buffer_class, n_steps: int, gamma: float):
-    """The same stream of transitions (episodes of 5 steps, one truncated) in a buffer, then one batch of it."""
+    """The same stream of transitions (episodes of 5 and 7 steps, the second episode of env 1 ended by its time
+    limit at step 13) in a buffer, then one batch of it."""
     obs_space, action_space = spaces.Box(-10, 10, (2,), np.float32), spaces.Box(-1, 1, (1,), np.float32)
     buffer = buffer_class(64, obs_space, action_space, device="cpu", n_envs=2, n_steps=n_steps, gamma=gamma)
     rng = np.random.default_rng(1)
     for step in range(23):
         obs, next_obs = rng.normal(size=(2, 2)), rng.normal(size=(2, 2))
         done = np.array([step % 5 == 4, step % 7 == 6])
-        infos = [{"TimeLimit.truncated": bool(step == 13)}, {}]
+        infos = [{}, {"TimeLimit.truncated": bool(step == 13)}]
         buffer.add(obs, next_obs, rng.normal(size=(2, 1)), rng.normal(size=2), done, infos)
     np.random.seed(5)
     return buffer.sample(32)
@@ -146,10 +150,37 @@ def n_step_batches(buffer_class, n_steps: int, gamma: float):
 def test_n_steps_gives_sb3s_n_step_returns():
     ours, sb3 = n_step_batches(DomainReplayBuffer, 3, 0.9), n_step_batches(NStepReplayBuffer, 3, 0.9)
     for name in ("observations", "actions", "next_observations", "dones", "rewards", "discounts"):
-        th.testing.assert_close(getattr(ours, name), getattr(sb3, name).to(getattr(ours, name).dtype), msg=name)
+        assert th.equal(getattr(ours, name), getattr(sb3, name).to(getattr(ours, name).dtype)), name
     # some returns stop early, at an episode's end or the newest transition
     discounts = ours.discounts.numpy().astype(np.float64).round(4)
     assert np.isin(discounts, [0.9, 0.81, 0.729]).all() and (discounts > 0.8).any()
+
+
+def test_n_steps_takes_the_same_steps_as_sb3_sac_with_n_steps_bit_for_bit():
+    # episodes of 20 steps, so that some returns stop at an episode's end
+    def env():
+        return make_vec_env("Pendulum-v1", n_envs=2, seed=0, env_kwargs=dict(max_episode_steps=20))
+
+    common = dict(TINY, policy_kwargs=SMALL_NET, learning_rate=1e-3, tau=0.01)  # EncoderSAC's lr and tau
+    sac = SAC(MlpPolicy, env(), n_steps=3, **common).learn(150)
+    ours = EncoderSAC("MlpPolicy", env(), n_steps=3, **common).learn(150)
+    assert isinstance(sac.replay_buffer, NStepReplayBuffer) and ours.replay_buffer.n_steps == 3
+    assert ours._n_updates == sac._n_updates > 0
+    for (name, expected), (_, got) in zip(
+        sac.policy.state_dict().items(), ours.policy.state_dict().items(), strict=True
+    ):
+        assert th.equal(expected, got), name
+    assert th.equal(sac.log_ent_coef, ours.log_ent_coef)
+
+
+def test_n_steps_with_a_buffer_class_that_ignores_them_warns_as_sb3_does():
+    with pytest.warns(UserWarning, match=r"`n_steps=3` is ignored because a custom `replay_buffer_class`"):
+        model = EncoderSAC("MlpPolicy", pendulum(1), replay_buffer_class=ReplayBuffer, n_steps=3, **TINY)
+    assert type(model.replay_buffer) is ReplayBuffer
+    # the domain buffer takes them: no such warning
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message="`n_steps=")
+        assert EncoderSAC("MlpPolicy", pendulum(1), n_steps=3, **TINY).replay_buffer.n_steps == 3
 
 
 def test_sgfd_sac_with_n_steps_learns_on_n_step_returns():

@@ -456,6 +456,21 @@ def test_sweep_attaches_to_a_ray_start_cluster_with_token_authentication(tmp_pat
     assert command[command.index("--run-id") + 1] == "1" and "default_worker" not in " ".join(command)
 
 
+def test_liveness_counts_a_head_that_stops_taking_connections_as_lost_after_failures_in_a_row() -> None:
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        address = f"127.0.0.1:{server.getsockname()[1]}"
+        liveness = ray_runs.Liveness(address)
+        liveness.check(now=True)  # it answers
+        assert liveness.failures == 0
+    for failures in range(1, ray_runs.LIVENESS_FAILURES):  # closed: a failure short of the count is not yet lost
+        liveness._next = 0.0  # the check is due
+        liveness.check()
+        assert liveness.failures == failures
+    liveness._next = 0.0
+    with pytest.raises(ray_runs.ClusterLost, match=f"its head at {re.escape(address)} no longer answers"):
+        liveness.check()
+
+
 @pytest.mark.slow
 def test_a_sweep_whose_cluster_goes_away_exits_75_naming_it_with_where_each_run_stopped(tmp_path: Path) -> None:
     home, logs = tmp_path / "home", tmp_path / "logs"

@@ -138,8 +138,8 @@ def test_classifier_alone_learns_a_per_dimension_temporal_relation():
 @pytest.mark.parametrize(
     ("call", "error", "message"),
     [
-        (lambda: TEDClassifier(0), ValueError, "features_dim must be an int >= 1"),
-        (lambda: TEDClassifier(True), ValueError, "features_dim must be an int >= 1"),
+        (lambda: TEDClassifier(0), ValueError, "features_dim must be a positive integer"),
+        (lambda: TEDClassifier(True), ValueError, "features_dim must be a positive integer"),
         (lambda: TEDClassifier(3)(torch.zeros(2, 4), torch.zeros(2, 4)), ValueError, r"z1 must have shape \(n, 3\)"),
         (lambda: TEDClassifier(3)(torch.zeros(2, 3), torch.zeros(3, 3)), ValueError, r"z2 must have shape \(2, 3\)"),
         (lambda: temporal_pairs(torch.zeros(1, 3), torch.zeros(1, 3), torch.zeros(1, 3)), ValueError, "at least 2"),

@@ -18,6 +18,7 @@ from sb3_sgfd.sgfd.official_reading import (
     OfficialClassifier,
     OfficialWeighting,
     official_fourier_features,
+    official_loss,
     official_loss_and_gradient,
     solve_official_weights,
 )
@@ -69,6 +70,7 @@ def test_official_loss_is_the_sum_over_channels_and_off_diagonal_pairs_and_its_g
         expected = expected + sum(pairs[i, j] * cov[i, j] ** 2 for i in range(5) for j in range(5) if i != j)
     loss, grad_a = official_loss_and_gradient(u, a.detach(), pairs)
     torch.testing.assert_close(loss, expected.detach())
+    assert torch.equal(official_loss(u, a.detach(), pairs), loss)  # the logged losses' path: the same value
     (autograd_theta,) = torch.autograd.grad(expected, logits)
     a = a.detach()
     torch.testing.assert_close(a * (grad_a - a @ grad_a), autograd_theta)

@@ -31,10 +31,17 @@ def test_the_wheels_installed_in_a_fresh_environment_run_the_quick_job(tmp_path:
     shipped = {str(path.relative_to(REPO)) for path in (REPO / "sgfd_zoo" / "hyperparams").rglob("*.yml")}
     assert shipped and shipped <= names, sorted(shipped - names)
     assert {"sgfd_analysis/correlation.py", "sgfd_zoo/cli.py", "sb3_sgfd/common/encoder_sac.py"} <= names
-    assert {"sb3_sgfd/version.txt", "sb3_sgfd/py.typed"} <= names and not any(n.startswith("sgfd_envs/") for n in names)
+    assert "sb3_sgfd/py.typed" in names and not any(n.startswith("sgfd_envs/") for n in names)
     envs_names = set(zipfile.ZipFile(envs_wheel).namelist())
     assert {"sgfd_envs/__init__.py", "sgfd_envs/benchmarks/dcs.py", "sgfd_envs/domains/walker.py"} <= envs_names
     assert "sgfd_envs/version.txt" in envs_names and "sgfd_envs/pyproject.toml" not in envs_names
+    # One version, written once: both wheels carry sgfd_envs/version.txt's.
+    version = (REPO / "sgfd_envs" / "version.txt").read_text().strip()
+    assert wheel.name.startswith(f"sb3_sgfd-{version}-") and envs_wheel.name.startswith(f"sgfd_envs-{version}-"), (
+        wheel.name,
+        envs_wheel.name,
+        version,
+    )
 
     # A fresh environment with the wheel; its dependencies are this environment's packages, behind its own
     # site-packages (a plain path in a .pth file: the editable install's finder there is not run).
@@ -70,6 +77,11 @@ def test_the_wheels_installed_in_a_fresh_environment_run_the_quick_job(tmp_path:
         check=True, capture_output=True, text=True, cwd=work,
     ).stdout  # fmt: skip
     assert all(path.startswith(str(venv)) for path in where.split()), where
+    installed = subprocess.run(
+        [str(python), "-c", "import sb3_sgfd; print(sb3_sgfd.__version__)"],
+        check=True, capture_output=True, text=True, cwd=work,
+    ).stdout.strip()  # fmt: skip
+    assert installed == version, (installed, version)
 
     result = subprocess.run(
         [str(venv / "bin" / "sgfd-zoo"), "quick", "-n", "300", "--seeds", "0", "--eval-episodes", "1", "-f", "out"],

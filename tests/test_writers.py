@@ -9,9 +9,7 @@ The runs are ``sgfd-zoo train`` processes of the quick configuration of SAC on s
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import io
 import json
 import os
 import shlex
@@ -20,71 +18,21 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 import yaml
 from stable_baselines3 import SAC
+from zoo_runs import ENV_ID, NAME, SETTINGS, Training, has_checkpoint, train_args, zoo
 
 import sgfd_envs
 from sgfd_zoo import locks
 from sgfd_zoo.checkpoint_callback import ResumableCheckpointCallback
 from sgfd_zoo.checkpoints import read_index
-from sgfd_zoo.cli import main as zoo_main
 from sgfd_zoo.files import TMP_PREFIX, temporary_path
-from sgfd_zoo.locks import LOCK_FILE, RunLock, RunLocked, read_holder
+from sgfd_zoo.locks import LOCK_FILE, RunLock, RunLocked, live_holder, read_holder
 from sgfd_zoo.runs import STEPS_KEY, RunFolder, find_runs
-
-ENV_ID = "SGFD/MT-walker-walk-v0"
-NAME = "SGFD-MT-walker-walk-v0"
-SETTINGS = ["--quick", "--num-threads", "1", "--no-progress", "--verbose", "0", "--eval-freq", "-1"]
-SETTINGS += ["-params", "learning_starts:100", "gradient_steps:1", "batch_size:32", "policy_kwargs:dict(net_arch=[32])"]
-SETTINGS += ["buffer_size:2000"]
-
-
-def train_args(folder: Path, *extra: str, seed: int = 0, steps: int = 200, save_freq: int = 100) -> list[str]:
-    args = ["train", "--algo", "sac", "--env", ENV_ID, "--seed", str(seed), "-f", str(folder), *SETTINGS]
-    return [*args, "-n", str(steps), "--save-freq", str(save_freq), *extra]
-
-
-def zoo(args: list[str]) -> tuple[int, str, list[str]]:
-    """``sgfd-zoo`` in this process: exit code, stdout, and the lines of stderr."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = zoo_main(args)
-    return code, out.getvalue(), [line for line in err.getvalue().splitlines() if line.strip()]
-
-
-class Training:
-    """``sgfd-zoo train`` in a subprocess, its output in files."""
-
-    def __init__(self, args: list[str], folder: Path):
-        folder.mkdir(parents=True, exist_ok=True)
-        self.out, self.err = folder / "stdout.txt", folder / "stderr.txt"
-        with self.out.open("w") as out, self.err.open("w") as err:
-            self.process = subprocess.Popen([sys.executable, "-m", "sgfd_zoo.cli", *args], stdout=out, stderr=err)
-
-    def wait_until(self, condition: Callable[[], bool], timeout: float = 300) -> None:
-        deadline = time.monotonic() + timeout
-        while not condition():
-            assert self.process.poll() is None, f"ended early:\n{self.err.read_text()[-3000:]}"
-            assert time.monotonic() < deadline, "timed out"
-            time.sleep(0.05)
-
-    def error_lines(self) -> list[str]:
-        return [line for line in self.err.read_text().splitlines() if line.strip()]
-
-
-def has_checkpoint(run: Path) -> Callable[[], bool]:
-    def check() -> bool:
-        try:
-            return bool(read_index(run))
-        except Exception:  # not there yet, or being replaced
-            return False
-
-    return check
-
+from sgfd_zoo.sweep_plan import Job, locked_runs
 
 # -- runs started together ---------------------------------------------------------------------------------
 
@@ -94,7 +42,10 @@ def test_runs_started_together_each_get_their_own_folder_seed_config_and_progres
     # A SLURM array's tasks, into one log folder at once: two seeds, and one seed twice (a resubmitted task).
     logs, seeds = tmp_path / "logs", [0, 1, 2, 2]
     evaluations = ["--eval-freq", "200", "--eval-episodes", "1"]  # a row in progress.csv at the end
-    started = [Training(train_args(logs, *evaluations, seed=seed), tmp_path / f"t{i}") for i, seed in enumerate(seeds)]
+    started = [
+        Training(train_args(logs, *evaluations, seed=seed, steps=200, save_freq=100), tmp_path / f"t{i}")
+        for i, seed in enumerate(seeds)
+    ]
     codes = [training.process.wait(timeout=600) for training in started]
 
     assert codes == [0, 0, 0, 0], [training.error_lines()[-3:] for training in started]
@@ -117,6 +68,29 @@ def test_runs_started_together_each_get_their_own_folder_seed_config_and_progres
         assert not list(run.path.rglob(f"{TMP_PREFIX}*"))
 
 
+def test_a_run_records_its_train_command_once_and_runs_of_earlier_versions_still_say_how_they_continue(
+    tmp_path: Path,
+) -> None:
+    run = RunFolder(tmp_path / "sac" / f"{NAME}_1")
+    argv = ["--algo", "sac", "--env", ENV_ID, "-params", "policy_kwargs:dict(net_arch=[32, 32])", "-f", "my logs"]
+    # A run of an earlier version: rl-zoo3's unquoted command line (a sweep's: Ray's worker's) and command.json.
+    run.config_dir.mkdir(parents=True)
+    (run.config_dir / "command.txt").write_text("/venv/bin/python /venv/bin/ray-worker.py --node 1")
+    (run.path / "command.json").write_text(json.dumps(argv))
+    assert run.train_argv() == argv
+
+    run.record_start({}, {}, [*argv, "--resume"], step=100)  # resumed by this version: one file, quoted
+    assert sorted(path.name for path in run.path.iterdir()) == [NAME]
+    assert (run.config_dir / "command.txt").read_text() == shlex.join(["sgfd-zoo", "train", *argv, "--resume"]) + "\n"
+    assert run.train_argv() == [*argv, "--resume"]
+
+    unknown = RunFolder(tmp_path / "sac" / f"{NAME}_2")  # started from Python: no command to record
+    unknown.record_start({}, {}, None, step=0)
+    assert not (unknown.config_dir / "command.txt").exists() and unknown.train_argv() is None
+    legacy = Path(__file__).parent / "data" / "legacy" / "0.1.0" / "train_folder" / "sgfd_sac" / f"{NAME}_1"
+    assert (legacy / NAME / "command.txt").exists() and RunFolder(legacy).train_argv() is None  # never recorded flags
+
+
 # -- a second writer ---------------------------------------------------------------------------------------
 
 
@@ -129,7 +103,7 @@ def test_a_second_writer_is_refused_naming_the_holder_and_a_dead_ones_lock_is_ta
     holder = f"pid {first.process.pid} on host {socket.gethostname()} (sgfd-zoo train --algo sac --env {ENV_ID} "
 
     # `--resume` of the run while it trains: one line naming the writer.
-    code, _out, err = zoo(train_args(logs, "--resume", steps=100_000))
+    code, _out, err = zoo(train_args(logs, "--resume", steps=100_000, save_freq=100))
     assert code == 2 and len(err) == 1, err
     assert err[0].startswith(f"sgfd-zoo train: error: --resume: {run} is being written by {holder}"), err[0]
     assert "heartbeat " in err[0] and "one writer at a time" in err[0]
@@ -144,7 +118,7 @@ def test_a_second_writer_is_refused_naming_the_holder_and_a_dead_ones_lock_is_ta
     first.process.wait(timeout=60)
     assert read_holder(run) is not None
     stopped_at = read_index(run)[0].num_timesteps
-    code, out, err = zoo(train_args(logs, "--resume", steps=stopped_at + 100))
+    code, out, err = zoo(train_args(logs, "--resume", steps=stopped_at + 100, save_freq=100))
     assert code == 0, err
     warnings = [line for line in err if line.startswith("warning: taking over the lock")]
     assert len(warnings) == 1, err
@@ -187,6 +161,21 @@ def test_a_lock_from_another_host_is_refused_while_its_heartbeat_is_fresh_and_ta
     os.utime(tmp_path / LOCK_FILE, (time.time() - 3600, time.time() - 3600))
     RunLock.acquire(tmp_path).release()
     assert "its heartbeat is 60 min old" in capsys.readouterr().err
+
+
+def test_a_sweep_leaves_a_run_a_live_writer_holds_and_plans_one_whose_writer_is_gone(tmp_path: Path) -> None:
+    job = Job("sac", ENV_ID, 0, 1, tmp_path)
+    job.run_dir.mkdir(parents=True)
+    assert locked_runs([job]) == [] and live_holder(job.run_dir) is None  # no lock
+
+    write_lock(job.run_dir, "node-17", 4242, age=20)
+    assert live_holder(job.run_dir) == read_holder(job.run_dir)
+    [(locked, line)] = locked_runs([job])
+    assert locked == job and line.startswith(f"refused: {job.run_dir} is being written by pid 4242 on host node-17 (x)")
+    assert line.endswith(", heartbeat 20 s ago (one writer at a time)"), line
+
+    write_lock(job.run_dir, "node-17", 4242, age=3600)  # stale: the sweep's train takes it over
+    assert live_holder(job.run_dir) is None and locked_runs([job]) == []
 
 
 def test_the_heartbeat_renews_the_lock_and_a_writer_whose_lock_was_taken_over_stops_writing(

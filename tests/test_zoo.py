@@ -15,12 +15,12 @@ import yaml
 
 import sgfd_envs
 from sgfd_zoo import provenance, training
-from sgfd_zoo.algos import SGFD_ALGOS
+from sgfd_zoo.algos import SGFD_ALGOS, hyperparams_file
 from sgfd_zoo.arguments import ZooError
 from sgfd_zoo.checkpoints import read_index
 from sgfd_zoo.cli import main as zoo_main
 from sgfd_zoo.evaluate import read_results, render_tables
-from sgfd_zoo.experiment import SGFDExperimentManager, hyperparams_file, register_algorithms
+from sgfd_zoo.experiment import SGFDExperimentManager, register_algorithms
 from sgfd_zoo.runs import RunFolder
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
@@ -195,7 +195,7 @@ def test_table_renders_in_the_papers_layout():
         ),
         (["train", "--algo", "dbc", "--env", ENV_ID, "--quick", "-params", "augmentation_views:2"], "shifts images"),
         # values the zoo checks itself, before anything is built
-        (["train", "--env", ENV_ID, *TINY, "-n", "0"], "-n 0: expected a number of steps >= 1"),
+        (["train", "--env", ENV_ID, *TINY, "-n", "0"], "-n must be >= 1, got 0"),
         (["train", "--env", ENV_ID, *TINY, "--seed", "-5"], "--seed -5: expected 0..4294967295, or -1 for a random"),
         (
             ["train", "--env", ENV_ID, *TINY, "-params", "learning_rate:'fast'"],
@@ -210,9 +210,12 @@ def test_table_renders_in_the_papers_layout():
             "reweight_ess_penalty must be a finite number >= 0, got -1",
         ),
         (["train", "--env", ENV_ID, *TINY, "-params", "learning_rate:-0.1"], "learning_rate must be a number > 0"),
-        (["train", "--env", ENV_ID, *TINY, "-params", "n_envs:0"], "n_envs=0: expected a whole number of sub-envs"),
-        (["train", "--env", ENV_ID, "--quick", "-params", "n_timesteps:0"], "n_timesteps=0: expected a whole number"),
-        (["train", "--env", ENV_ID, *TINY, "--eval-episodes", "0"], "--eval-episodes 0: expected at least 1"),
+        (["train", "--env", ENV_ID, *TINY, "-params", "n_envs:0"], "n_envs must be a positive integer, got 0"),
+        (
+            ["train", "--env", ENV_ID, "--quick", "-params", "n_timesteps:0"],
+            "n_timesteps must be a positive integer, got 0",
+        ),
+        (["train", "--env", ENV_ID, *TINY, "--eval-episodes", "0"], "--eval-episodes must be >= 1, got 0"),
         # env settings: a typo named with what the id takes; what the zoo sets itself explained
         (
             ["train", "--env", ENV_ID, *TINY, "--env-kwargs", "obs_typ:'state'"],

@@ -11,6 +11,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
 from sb3_sgfd.common.policies import MlpEncoder, PixelEncoder, SGFDPolicy
+from sb3_sgfd.common.validation import check_reward_dim
 
 
 class AMBSEncoder(BaseFeaturesExtractor):
@@ -36,8 +37,7 @@ class AMBSEncoder(BaseFeaturesExtractor):
     ) -> None:
         super().__init__(observation_space, features_dim)
         reward_dim = features_dim // 2 if reward_dim is None else reward_dim
-        if not 0 < reward_dim < features_dim:
-            raise ValueError(f"reward_dim must be in 1..{features_dim - 1}, got {reward_dim}")
+        check_reward_dim(reward_dim, features_dim)
         self.reward_dim = reward_dim
         if len(observation_space.shape) == 3:  # images (PixelEncoder checks that they are)
             self.trunk: nn.Module = PixelEncoder(

@@ -19,7 +19,8 @@ from sb3_sgfd.common.buffers import DomainReplayBuffer
 from sb3_sgfd.common.buffers.dict_replay import DomainDictReplayBuffer
 from sb3_sgfd.common.representation import Representation
 
-#: SB3 warns that a custom buffer class does not take ``n_steps``: the domain buffers do (``_domain_buffer_kwargs``)
+#: SB3 warns that a custom buffer class does not take ``n_steps``: the domain buffers do (``_domain_buffer_kwargs``),
+#: so the warning is silenced for them only (:meth:`DomainBufferMixin._buffer_takes_n_steps`)
 N_STEPS_IGNORED_WARNING = "`n_steps="
 #: the replay buffers that store domain labels
 DOMAIN_BUFFERS = (DomainReplayBuffer, DomainDictReplayBuffer)
@@ -62,6 +63,12 @@ class DomainBufferMixin:
             self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, "same_episode_negatives": True}
         if domain_buffer:
             self.replay_buffer_kwargs = {**self.replay_buffer_kwargs, **self._domain_buffer_kwargs()}
+
+    def _buffer_takes_n_steps(self) -> bool:
+        """Whether SAC's ``n_steps`` > 1 go to the buffer class set up (a domain buffer takes them), so that SB3's
+        warning that a custom buffer class ignores them would be wrong; any other class does ignore them."""
+        buffer_class = self.replay_buffer_class
+        return self.n_steps > 1 and buffer_class is not None and issubclass(buffer_class, DOMAIN_BUFFERS)
 
     def _domain_buffer_kwargs(self) -> dict[str, Any]:
         """What the domain replay buffer needs from the model: the envs' label count (it refuses a label outside

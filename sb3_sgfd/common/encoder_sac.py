@@ -191,7 +191,8 @@ class EncoderSAC(DomainBufferMixin, SAC):
         representation_model = make_representation(self.representation, self.representation_kwargs)
         self._prepare_replay_buffer(representation_model)
         with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=N_STEPS_IGNORED_WARNING, category=UserWarning)
+            if self._buffer_takes_n_steps():
+                warnings.filterwarnings("ignore", message=N_STEPS_IGNORED_WARNING, category=UserWarning)
             super()._setup_model()
         if self.ent_coef_optimizer is not None and (self.ent_coef_lr is not None or self.ent_coef_beta != 0.9):
             lr = self.lr_schedule(1) if self.ent_coef_lr is None else self.ent_coef_lr
@@ -407,7 +408,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
     ) -> tuple[tuple[th.Tensor, ...], th.Tensor]:
         """``self.critic(observations, actions)``, as SB3's ContinuousCritic computes it (its encoder learning
         through it), and the encoder features it computed: the weights reuse them instead of encoding the
-        batch a second time (on pixels, a tenth of a step).
+        batch a second time (on pixels, the encoder is a large part of a step).
         """
         with th.set_grad_enabled(not self.critic.share_features_extractor):
             features = self.critic.extract_features(observations, self.critic.features_extractor)

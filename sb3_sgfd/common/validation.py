@@ -44,11 +44,22 @@ def check_non_negative(**values: float) -> None:
             raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
 
 
+def _positive_number(value: object) -> bool:
+    number = not isinstance(value, bool) and isinstance(value, (int, float, np.floating))
+    return number and 0 < value < math.inf  # type: ignore[operator]
+
+
 def check_positive(**values: float) -> None:
     """Refuse any of ``values`` that is not a finite number > 0, by name."""
     for name, value in values.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not 0 < value < math.inf:
+        if not _positive_number(value):
             raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+
+
+def check_optional_positive(name: str, value: object) -> None:
+    """Refuse ``value`` unless it is a finite number > 0 or None, naming the argument ``name``."""
+    if value is not None and not _positive_number(value):
+        raise ValueError(f"{name} must be a finite number > 0 or None, got {value!r}")
 
 
 def check_interval(
@@ -165,11 +176,6 @@ def _augmentation_views(name: str, value: Any) -> None:
         raise ValueError(f"{name} must be 0, 1 or 2, got {value!r}")
 
 
-def _optional_positive(name: str, value: Any) -> None:
-    if value is not None:
-        check_positive(**{name: value})
-
-
 def _optional_rate(name: str, value: Any) -> None:
     if value is not None:
         check_interval(name, value, 0.0, 1.0, low_open=True)
@@ -181,8 +187,8 @@ ENCODER_SAC_ARGUMENT_CHECKS: dict[str, Callable[[str, Any], None]] = {
     "augmentation_views": _augmentation_views,
     "augmentation_pad": lambda name, value: check_non_negative_int(**{name: value}),
     "encoder_tau": _optional_rate,
-    "max_grad_norm": _optional_positive,
-    "ent_coef_lr": _optional_positive,
+    "max_grad_norm": check_optional_positive,
+    "ent_coef_lr": check_optional_positive,
     "ent_coef_beta": lambda name, value: check_interval(name, value, 0.0, 1.0, high_open=True),
     "actor_reuses_features": lambda name, value: check_bool(**{name: value}),
 }
@@ -313,8 +319,7 @@ def check_perm(perm: object, n: int) -> None:
 
 def check_gamma(gamma: object) -> None:
     """Refuse a discount that is not a number in [0, 1)."""
-    if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not 0 <= gamma < 1:
-        raise ValueError(f"gamma must be a number in [0, 1), got {gamma!r}")
+    check_interval("gamma", gamma, 0.0, 1.0, high_open=True)
 
 
 def check_reward_weight(reward_weight: object) -> Tensor | float:
@@ -345,18 +350,6 @@ def check_metric_learner(learner: object, name: str, half_dim: int) -> None:
         raise ValueError(f"{name} must be a MetricLearner with half_dim {half_dim}, got {got}")
 
 
-def check_batch(z: Tensor, name: str) -> None:
-    """Refuse a batch of features that is not a finite floating-point (n, d) tensor with n >= 2 (a host read)."""
-    if not isinstance(z, Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(z).__name__}")
-    if z.dim() != 2 or z.shape[0] < 2 or z.shape[1] < 1:
-        raise ValueError(f"{name} must have shape (n, d) with n >= 2 and d >= 1, got {tuple(z.shape)}")
-    if not z.is_floating_point():
-        raise TypeError(f"{name} must be a floating-point tensor, got {z.dtype}")
-    if not torch.isfinite(z).all():
-        raise ValueError(f"{name} contains NaN or inf values")
-
-
 def check_weights(weights: Tensor, n: int) -> None:
     """Refuse sample weights that are not a finite, non-negative (n,) tensor with a positive sum (a host read)."""
     if not isinstance(weights, Tensor) or weights.shape != (n,):
@@ -381,27 +374,6 @@ def check_probs(feature_probs: Tensor | None, d: int) -> None:
         raise ValueError("feature_probs must be finite, non-negative and sum to 1")
 
 
-def check_max_step(max_step: float | None, name: str = "max_step") -> None:
-    """Refuse a trust-region size (``learn_sample_weights``' ``max_step``) that is not None or a finite number
-    > 0, naming the argument ``name``."""
-    if max_step is None:
-        return
-    if isinstance(max_step, bool) or not isinstance(max_step, (int, float)) or not 0 < max_step < math.inf:
-        raise ValueError(f"{name} must be None or a finite number > 0, got {max_step!r}")
-
-
-def check_features(z: Tensor, name: str = "z", finite: bool = True) -> None:
-    """Shape and dtype of features; with ``finite``, their values too (a host read: not on SGFD's step)."""
-    if not isinstance(z, Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(z).__name__}")
-    if z.dim() != 2 or z.shape[0] < 1 or z.shape[1] < 1:
-        raise ValueError(f"{name} must have shape (n, d) with n >= 1 and d >= 1, got {tuple(z.shape)}")
-    if not z.is_floating_point():
-        raise TypeError(f"{name} must be a floating-point tensor, got {z.dtype}")
-    if finite and not torch.isfinite(z).all():
-        raise ValueError(f"{name} contains NaN or inf values")
-
-
 def check_domains(domains: Tensor, n: int) -> None:
     """Refuse domain labels that are not an integer (n,) tensor (their values are checked where they are used)."""
     if not isinstance(domains, Tensor) or domains.shape != (n,):
@@ -409,16 +381,6 @@ def check_domains(domains: Tensor, n: int) -> None:
         raise ValueError(f"domains must be a tensor of shape ({n},), got {shape}")
     if domains.is_floating_point() or domains.is_complex() or domains.dtype == torch.bool:
         raise TypeError(f"domains must be an integer tensor of domain labels, got {domains.dtype}")
-
-
-def check_probability_settings(temperature: float, smoothing: float) -> None:
-    """Refuse a saliency softmax temperature that is not a finite number > 0, or a smoothing outside [0, 1]."""
-    if isinstance(temperature, bool) or not isinstance(temperature, (int, float)) or not temperature > 0:
-        raise ValueError(f"temperature must be a number > 0, got {temperature!r}")
-    if not math.isfinite(temperature):
-        raise ValueError(f"temperature must be finite, got {temperature!r}")
-    if isinstance(smoothing, bool) or not isinstance(smoothing, (int, float)) or not 0 <= smoothing <= 1:
-        raise ValueError(f"smoothing must be a number in [0, 1], got {smoothing!r}")
 
 
 def check_tensor(x: object, name: str, dim: int | None = None) -> None:
@@ -432,16 +394,8 @@ def check_tensor(x: object, name: str, dim: int | None = None) -> None:
 
 def check_frames(channels: int, channels_per_frame: int, name: str) -> None:
     """Refuse a frame size that does not divide the ``channels`` of the stacked images ``name``."""
-    if isinstance(channels_per_frame, bool) or not isinstance(channels_per_frame, int) or channels_per_frame < 1:
-        raise ValueError(f"channels_per_frame must be an int >= 1, got {channels_per_frame!r}")
+    check_positive_int(channels_per_frame=channels_per_frame)
     if channels % channels_per_frame != 0:
         raise ValueError(
             f"the {channels} channels of {name} are not divisible by channels_per_frame={channels_per_frame}"
         )
-
-
-def positive_int(value: object, name: str) -> int:
-    """``value`` if it is an int >= 1; else refused, naming it ``name``."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
-    return value

@@ -17,7 +17,16 @@ import torch
 from torch import Tensor
 
 from sb3_sgfd.common.tensor_state import TensorStateModule
-from sb3_sgfd.common.validation import check_batch, check_choice, check_max_step, check_probs, check_weights
+from sb3_sgfd.common.validation import (
+    check_choice,
+    check_interval,
+    check_matrix,
+    check_non_negative_int,
+    check_optional_positive,
+    check_positive_int,
+    check_probs,
+    check_weights,
+)
 
 COVARIANCES = ("weighted", "literal")
 
@@ -32,9 +41,8 @@ def random_fourier_features(z: Tensor, n_features: int = 5, generator: torch.Gen
     :param generator: source of randomness; sampled on its device, so the global RNG is left untouched
     :return: tensor of shape (n, d, m)
     """
-    check_batch(z, "z")
-    if isinstance(n_features, bool) or not isinstance(n_features, int) or n_features < 1:
-        raise ValueError(f"n_features must be an int >= 1, got {n_features!r}")
+    check_matrix(z, "z", min_rows=2, finite=True)
+    check_positive_int(n_features=n_features)
     return _fourier_features(z, n_features, generator)
 
 
@@ -116,8 +124,7 @@ class WeightMemory(TensorStateModule):
 
     def __init__(self, momentum: float = 0.9) -> None:
         super().__init__()
-        if isinstance(momentum, bool) or not isinstance(momentum, (int, float)) or not 0 <= momentum < 1:
-            raise ValueError(f"memory momentum must be a number in [0, 1), got {momentum!r}")
+        check_interval("memory momentum", momentum, 0.0, 1.0, high_open=True)
         self.momentum = float(momentum)
         self.features: Tensor | None = None
         self.logits: Tensor | None = None
@@ -272,20 +279,18 @@ def learn_sample_weights(
     :return: weights (n,), non-negative, summing to n, without grad; with ``return_losses``
         the tuple (weights, loss_before, loss_after) of this batch alone, same RFF draw
     """
-    check_batch(z, "z")
+    check_matrix(z, "z", min_rows=2, finite=True)
     check_probs(feature_probs, z.shape[1])
     check_choice("covariance", covariance, COVARIANCES)
-    if isinstance(n_rff, bool) or not isinstance(n_rff, int) or n_rff < 1:
-        raise ValueError(f"n_rff must be an int >= 1, got {n_rff!r}")
-    if isinstance(iters, bool) or not isinstance(iters, int) or iters < 0:
-        raise ValueError(f"iters must be an int >= 0, got {iters!r}")
+    check_positive_int(n_rff=n_rff)
+    check_non_negative_int(iters=iters)
     numbers = {"lr": lr, "momentum": momentum, "weight_decay": weight_decay, "ess_penalty": ess_penalty}
     for name, value in numbers.items():
         if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
             raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
     if feature_std is not None and (not isinstance(feature_std, (int, float)) or not feature_std > 0):
         raise ValueError(f"feature_std must be None or a number > 0, got {feature_std!r}")
-    check_max_step(max_step)
+    check_optional_positive("max_step", max_step)
     if memory is not None and not isinstance(memory, WeightMemory):
         raise ValueError(f"memory must be None or a WeightMemory, got {type(memory).__name__}")
 
@@ -420,7 +425,7 @@ def weighted_pearson(x: Tensor, weights: Tensor | None = None) -> Tensor:
     :param weights: non-negative sample weights (n,); None = uniform
     :return: (d, d) matrix with 1 on the diagonal
     """
-    check_batch(x, "x")
+    check_matrix(x, "x", min_rows=2, finite=True)
     n = x.shape[0]
     if weights is None:
         weights = torch.ones(n, dtype=x.dtype, device=x.device)

@@ -59,12 +59,10 @@ class PaperWeighting(SampleWeighting):
     ) -> None:
         super().__init__(n_features, n_domains)
         self.settings = settings
-        # the threshold in use: a benchmark or test pins the classifier's phase by moving it
-        self.accuracy_threshold = settings.accuracy_threshold
         self.solver_settings = settings.solver_settings()
         self.seed = seed
         self.classifier = DomainClassifier(n_features, max(n_domains, 2), settings.classifier_hidden_dim).to(device)
-        # Fused: one kernel for all six parameters instead of a dozen small ops each (a fifth of a classifier step).
+        # Fused: one kernel for all six parameters instead of a dozen small ops each.
         self.classifier_optimizer = torch.optim.Adam(
             self.classifier.parameters(), lr=settings.classifier_lr, fused=True
         )
@@ -90,11 +88,15 @@ class PaperWeighting(SampleWeighting):
             )
         if self.settings.classifier_iters > 0 and step.update_index % self.settings.classifier_interval == 0:
             # one host read per round: whether this batch's score is below the threshold
-            below = accuracy is not None and bool(accuracy < self.accuracy_threshold)
+            below = accuracy is not None and bool(accuracy < self.settings.accuracy_threshold)
             if accuracy is None or below:
                 batches = self._classifier_batches(z, domains, len(z), step.fresh_features)
                 accuracy, steps = train_classifier(
-                    self.classifier, self.classifier_optimizer, batches, self.accuracy_threshold, first_below=below
+                    self.classifier,
+                    self.classifier_optimizer,
+                    batches,
+                    self.settings.accuracy_threshold,
+                    first_below=below,
                 )
                 # a batch scored at the threshold stops the loop before its step
                 self.ready = self.ready or steps < self.settings.classifier_iters

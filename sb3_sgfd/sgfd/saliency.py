@@ -9,7 +9,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from sb3_sgfd.common.validation import check_domains, check_features, check_probability_settings
+from sb3_sgfd.common.validation import check_domains, check_interval, check_matrix, check_positive
 
 
 class DomainClassifier(nn.Module):
@@ -79,7 +79,7 @@ def saliency_map(classifier: nn.Module, z: Tensor, domains: Tensor | None = None
     :param domains: optional true domain labels (n,)
     :return: (d,) non-negative saliency, without grad
     """
-    check_features(z)
+    check_matrix(z, "z", finite=True)
     if domains is not None:
         check_domains(domains, z.shape[0])
     if isinstance(classifier, DomainClassifier):
@@ -134,7 +134,8 @@ def feature_probabilities(
     :param domains: optional true labels; the saliency is then taken on the true domain's logit
     :return: (d,) probabilities summing to 1, without grad
     """
-    check_probability_settings(temperature, smoothing)
+    check_positive(temperature=temperature)
+    check_interval("smoothing", smoothing, 0.0, 1.0)
     return _probabilities(saliency_map(classifier, z, domains), temperature, normalize, smoothing)
 
 
@@ -156,8 +157,9 @@ def scored_feature_probabilities(
     :param domains: true domain labels (n,), for the accuracy
     :return: p(Z_i) (d,) without grad, and the fraction of samples whose domain is predicted right
     """
-    check_probability_settings(temperature, smoothing)
-    check_features(z, finite=False)
+    check_positive(temperature=temperature)
+    check_interval("smoothing", smoothing, 0.0, 1.0)
+    check_matrix(z, "z")
     check_domains(domains, z.shape[0])
     predicted, gradient = classifier.predictions_and_input_gradient(z.detach())
     accuracy = _accuracy(predicted, domains)
@@ -194,7 +196,7 @@ def train_classifier(
     """
     accuracy, steps = torch.zeros(()), 0
     for index, (z, domains) in enumerate(batches):
-        check_features(z, finite=False)
+        check_matrix(z, "z")
         check_domains(domains, z.shape[0])
         logits = classifier(z)  # one forward pass scores the batch and, below the threshold, trains on it
         accuracy = _accuracy(logits.detach().argmax(dim=1), domains)
@@ -216,7 +218,7 @@ def classifier_accuracy(classifier: nn.Module, z: Tensor, domains: Tensor) -> fl
     :param z: features (n, d)
     :param domains: true domain labels (n,)
     """
-    check_features(z)
+    check_matrix(z, "z", finite=True)
     check_domains(domains, z.shape[0])
     with torch.no_grad():
         predicted = classifier(z).argmax(dim=1)

@@ -8,16 +8,16 @@ numbers). A new setting is a field here (with its line in the docstring) and a k
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import dataclass, fields
 from typing import Any, TypedDict
 
 from sb3_sgfd.common.validation import (
     check_bool,
     check_choice,
     check_interval,
-    check_max_step,
     check_non_negative,
     check_non_negative_int,
+    check_optional_positive,
     check_positive,
     check_positive_int,
 )
@@ -128,7 +128,7 @@ class SGFDSettings:
         check_interval("saliency_smoothing", self.saliency_smoothing, 0.0, 1.0)
         if self.reweight_memory is not None:
             check_interval("reweight_memory", self.reweight_memory, 0.0, 1.0, high_open=True, also="False")
-        check_max_step(self.reweight_max_step, "reweight_max_step")
+        check_optional_positive("reweight_max_step", self.reweight_max_step)
         check_bool(
             use_rff=self.use_rff,
             use_saliency=self.use_saliency,
@@ -164,14 +164,6 @@ class SGFDSettings:
             given["reweight_memory"] = None
         defaults = _OFFICIAL if reading == "official" else {}
         return cls(reading=reading, **{**defaults, **given})
-
-    def changed(self, **settings: Any) -> SGFDSettings:
-        """A copy with ``settings`` changed (checked as when made)."""
-        return replace(self, **settings)
-
-    def as_dict(self) -> dict[str, Any]:
-        """The settings by name, ``reading`` included."""
-        return asdict(self)
 
     def solver_settings(self) -> SolverSettings:
         """The weight solver's keywords (both readings' solvers take them), in a new dict."""

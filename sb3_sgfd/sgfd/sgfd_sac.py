@@ -15,6 +15,7 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_sgfd.common.buffer_setup import DOMAIN_BUFFERS
 from sb3_sgfd.common.buffers import DomainReplayBuffer, DomainReplayBufferSamples
 from sb3_sgfd.common.encoder_sac import EncoderSAC
+from sb3_sgfd.common.validation import check_positive_int
 from sb3_sgfd.sgfd.official_reading import OfficialWeighting
 from sb3_sgfd.sgfd.paper_reading import PaperWeighting
 from sb3_sgfd.sgfd.settings import SGFDSettings, setting_names
@@ -208,8 +209,7 @@ class SGFD_SAC(EncoderSAC):
         self._adopt_saved_settings()
         if self.n_domains is None:
             self.n_domains = self._env_domain_count() if self.env is not None else None
-        if self.n_domains is None or self.n_domains < 1:
-            raise ValueError(f"n_domains must be a positive integer, got {self.n_domains}")
+        check_positive_int(n_domains=self.n_domains)  # type: ignore[arg-type]
         self._adopt_env_domains()
         super()._setup_model()
         if self.n_domains == 1 and not self.single_domain:

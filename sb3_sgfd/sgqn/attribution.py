@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from sb3_sgfd.common.validation import check_frames, check_tensor, positive_int
+from sb3_sgfd.common.validation import check_frames, check_positive_int, check_tensor
 
 
 def _float_copy(x: Tensor) -> Tensor:
@@ -283,11 +283,13 @@ class AttributionDecoder(nn.Module):
 
     def __init__(self, features_dim: int, action_dim: int, image_shape: tuple[int, int, int]) -> None:
         super().__init__()
-        self.features_dim = positive_int(features_dim, "features_dim")
-        self.action_dim = positive_int(action_dim, "action_dim")
+        check_positive_int(features_dim=features_dim, action_dim=action_dim)
+        self.features_dim = features_dim
+        self.action_dim = action_dim
         if not isinstance(image_shape, Sequence) or len(image_shape) != 3:
             raise ValueError(f"image_shape must be (C, H, W), got {image_shape!r}")
-        c, h, w = (positive_int(size, "every entry of image_shape") for size in image_shape)
+        check_positive_int(**{f"image_shape[{i}]": size for i, size in enumerate(image_shape)})
+        c, h, w = image_shape
         self.image_shape = (c, h, w)
         self.grid = (math.ceil(h / 4), math.ceil(w / 4))
         self.proj = nn.Linear(features_dim + action_dim, 32 * self.grid[0] * self.grid[1])

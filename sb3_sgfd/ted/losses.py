@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from sb3_sgfd.common.validation import check_matrix
+from sb3_sgfd.common.validation import check_matrix, check_positive_int
 
 
 class TEDClassifier(nn.Module):
@@ -33,8 +33,7 @@ class TEDClassifier(nn.Module):
     """
 
     def __init__(self, features_dim: int) -> None:
-        if isinstance(features_dim, bool) or not isinstance(features_dim, int) or features_dim < 1:
-            raise ValueError(f"features_dim must be an int >= 1, got {features_dim!r}")
+        check_positive_int(features_dim=features_dim)
         super().__init__()
         self.features_dim = features_dim
         # w[0] weighs z1 and w[1] weighs z2 inside the absolute value; w_bar and b_bar make the quadratic term of z1.

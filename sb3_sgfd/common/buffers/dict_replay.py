@@ -90,19 +90,25 @@ class DomainDictReplayBuffer(DomainLabelsMixin, DictReplayBuffer):
         infos: list[dict[str, Any]],
     ) -> None:
         labels = domain_labels(infos)
-        for key in obs:
-            check_transitions(
-                observations=obs[key],
-                next_observations=next_obs[key],
-                actions=action,
-                rewards=reward,
-                domains=labels,
-                n_domains=self.n_domains,
-                add_index=self._n_adds,
-            )
+        check_transitions(
+            observations=self._float_parts(obs),
+            next_observations=self._float_parts(next_obs),
+            actions=action,
+            rewards=reward,
+            domains=labels,
+            n_domains=self.n_domains,
+            add_index=self._n_adds,
+        )
         self.domains[self.pos] = labels
         super().add(obs, next_obs, action, reward, done, infos)
         self._n_adds += 1
+
+    def _float_parts(self, observation: dict[str, np.ndarray]) -> np.ndarray:
+        """The floating-point entries of a Dict observation side by side, one row per sub-env, so that one check
+        covers every key (integer entries, such as images, are finite)."""
+        rows = [np.asarray(part).reshape(self.n_envs, -1) for part in observation.values()]
+        floats = [part for part in rows if part.dtype.kind in "fc"]
+        return np.concatenate(floats, axis=1) if floats else np.zeros((self.n_envs, 0), dtype=np.float32)
 
     def _get_samples(  # type: ignore[override]
         self, batch_inds: np.ndarray, env: VecNormalize | None = None

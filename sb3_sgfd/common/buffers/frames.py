@@ -121,12 +121,16 @@ class FrameStorageMixin:
             )
         return continuing
 
-    def _rebuild_stacks(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _rebuild_stacks(
+        self, batch_inds: np.ndarray, env_indices: np.ndarray, next_inds: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """
         Observation and next observation stacks of sampleable pairs, from the stored frames.
 
         :param batch_inds: Slots
         :param env_indices: Env indices
+        :param next_inds: Slots whose next observations to rebuild (an n-step return's last transition, in the
+            same episode); None: ``batch_inds``
         :return: obs and next_obs, each a new C-contiguous array of shape (batch, *obs_shape)
         """
         assert self.frame_stack is not None
@@ -136,20 +140,26 @@ class FrameStorageMixin:
         offsets = np.arange(n_frames - 1, -2, -1)
         slots = (batch_inds[:, None] - offsets) % self.buffer_size
         env_column = env_indices[:, None]
+        padding = offsets > self.history[batch_inds, env_indices][:, None].astype(np.intp)
         # Two gathers rather than one sequence sliced twice: contiguous results convert to tensors without a copy.
         obs = self.frames[slots[:, :-1], env_column]
-        next_obs = self.frames[slots[:, 1:], env_column]
+        if next_inds is None or next_inds is batch_inds:
+            next_inds, next_slots, next_padding = batch_inds, slots, padding
+        else:
+            next_slots = (next_inds[:, None] - offsets) % self.buffer_size
+            next_padding = offsets > self.history[next_inds, env_indices][:, None].astype(np.intp)
+        next_obs = self.frames[next_slots[:, 1:], env_column]
 
-        padding = offsets > self.history[batch_inds, env_indices][:, None].astype(np.intp)
         if padding.any():
             obs[padding[:, :-1]] = 0
-            next_obs[padding[:, 1:]] = 0
+        if next_padding.any():
+            next_obs[next_padding[:, 1:]] = 0
 
-        newest = np.flatnonzero(batch_inds == self._last_slot)
+        newest = np.flatnonzero(next_inds == self._last_slot)
         if len(newest) > 0:
             next_obs[newest, -1] = self._last_next_obs[env_indices[newest], -channels:]
-        for row in np.flatnonzero(self.has_side_frame[batch_inds, env_indices]):
-            next_obs[row, -1] = self.side_frames[(int(batch_inds[row]), int(env_indices[row]))]
+        for row in np.flatnonzero(self.has_side_frame[next_inds, env_indices]):
+            next_obs[row, -1] = self.side_frames[(int(next_inds[row]), int(env_indices[row]))]
 
         stacked_shape = (len(batch_inds), *self.obs_shape)
         return obs.reshape(stacked_shape), next_obs.reshape(stacked_shape)

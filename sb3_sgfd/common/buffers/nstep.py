@@ -64,10 +64,12 @@ def n_step_targets(
     included = steps[None, :] <= last[:, None]
     last_slots = slots[np.arange(len(last)), last]
     terminated = dones[last_slots, env_indices] * (1 - timeouts[last_slots, env_indices])
+    # The powers of gamma in float32, as SB3 takes them: the same returns and discounts to the bit.
+    gamma32 = np.float32(gamma)
     return NStepTargets(
         slots=slots,
-        reward_weights=(gamma ** steps[None, :] * included).astype(np.float32),
+        reward_weights=gamma32 ** steps[None, :].astype(np.float32) * included,
         last_slots=last_slots,
         dones=terminated.reshape(-1, 1).astype(np.float32),
-        discounts=(gamma ** (last + 1)).reshape(-1, 1).astype(np.float32),
+        discounts=(gamma32 ** (last + 1).astype(np.float32)).reshape(-1, 1),
     )

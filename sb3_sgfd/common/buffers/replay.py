@@ -278,17 +278,8 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
                 pairs = list(zip(np.asarray(batch_inds)[bad].tolist(), env_indices[bad].tolist(), strict=True))
                 raise ValueError(f"(batch_inds, env_indices) pairs {pairs} hold no sampleable transition")
 
-        if self.frame_stack is not None:
-            obs, next_obs = self._rebuild_stacks(batch_inds, env_indices)
-        else:
-            obs = self.observations[batch_inds, env_indices, :]
-            if self.optimize_memory_usage:
-                next_obs = self.observations[(batch_inds + 1) % self.buffer_size, env_indices, :]
-            else:
-                next_obs = self.next_observations[batch_inds, env_indices, :]
-        dones = (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1)
-        rewards = self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env)
-        discounts = None
+        # The n-step return's last transition gives the next observation; one-step: the sampled one.
+        targets = None
         if self.n_steps > 1:
             targets = n_step_targets(
                 batch_inds,
@@ -300,13 +291,23 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
                 n_steps=self.n_steps,
                 gamma=self.gamma,
             )
+        next_inds = batch_inds if targets is None else targets.last_slots
+        if self.frame_stack is not None:
+            obs, next_obs = self._rebuild_stacks(batch_inds, env_indices, next_inds)
+        else:
+            obs = self.observations[batch_inds, env_indices, :]
+            if self.optimize_memory_usage:  # one-step only (n_steps > 1 refuses it)
+                next_obs = self.observations[(batch_inds + 1) % self.buffer_size, env_indices, :]
+            else:
+                next_obs = self.next_observations[next_inds, env_indices, :]
+        discounts = None
+        if targets is None:
+            dones = (self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])).reshape(-1, 1)
+            rewards = self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env)
+        else:
             steps = self._normalize_reward(self.rewards[targets.slots, env_indices[:, None]], env)
             rewards = (steps * targets.reward_weights).sum(axis=1, keepdims=True).astype(np.float32)
             dones, discounts = targets.dones, targets.discounts
-            if self.frame_stack is not None:
-                next_obs = self._rebuild_stacks(targets.last_slots, env_indices)[1]
-            else:
-                next_obs = self.next_observations[targets.last_slots, env_indices, :]
         data = (
             self._normalize_obs(obs, env),
             self.actions[batch_inds, env_indices, :],

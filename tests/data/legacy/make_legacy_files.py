@@ -5,7 +5,11 @@ The files under ``0.1.0/`` were written by this script at commit f8368d4, before
 folder each and the zoo became ``sgfd_zoo``. The test loads them with today's code: a model, buffer or
 checkpoint saved by an earlier version must keep loading.
 
-    MUJOCO_GL=egl python tests/data/legacy/make_legacy_files.py OUT_FOLDER
+    MUJOCO_GL=egl python tests/data/legacy/make_legacy_files.py OUT_FOLDER [AGENT ...]
+
+Naming agents writes only their files (adding their actions to ``predictions.json``) and no zoo run. The
+``sgfd_sac_ready`` files were added so, later, by this script run on the code of commit f8368d4
+(``git archive f8368d4 | tar -x -C SRC``, then from SRC with ``PYTHONPATH=SRC``).
 """
 
 from __future__ import annotations
@@ -47,6 +51,8 @@ AGENTS = {
     "sac": lambda: SAC(MlpPolicy, state_env(), replay_buffer_class=DomainReplayBuffer, **STATES),
     "sgfd_sac": lambda: SGFD_SAC("MlpPolicy", state_env(), classifier_start=60, **STATES),
     "sgfd_sac_official": lambda: SGFD_SAC("MlpPolicy", state_env(), reading="official", classifier_start=60, **STATES),
+    # the paper's reading once its classifier reached the threshold: its saved state has ready=True
+    "sgfd_sac_ready": lambda: SGFD_SAC("MlpPolicy", state_env(), classifier_start=60, accuracy_threshold=0.1, **STATES),
     "sgfd_sac_ambs": lambda: SGFD_SAC(
         "AMBSPolicy", pixel_env(), representation="ambs", classifier_start=60, augmentation_views=2, **PIXELS
     ),
@@ -59,11 +65,11 @@ AGENTS = {
 }
 
 
-def main(out: Path) -> None:
+def main(out: Path, names: list[str]) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    predictions = {}
-    for name, make in AGENTS.items():
-        model = make().learn(120)
+    predictions = json.loads((out / "predictions.json").read_text()) if names else {}
+    for name in names or AGENTS:
+        model = AGENTS[name]().learn(120)
         model.save(out / f"{name}.zip")
         model.save_replay_buffer(out / f"{name}_buffer.pkl")
         observation = model.get_env().reset()
@@ -72,6 +78,8 @@ def main(out: Path) -> None:
         predictions[name] = action.tolist()
         model.get_env().close()
     (out / "predictions.json").write_text(json.dumps(predictions, indent=1) + "\n")
+    if names:
+        return
     # a zoo run killed after its first checkpoint, to be resumed by today's code
     logs = out / "train_folder"
     # the zoo of the checkout this runs from (``zoo`` before the rename, ``sgfd_zoo`` after it)
@@ -116,4 +124,4 @@ def main(out: Path) -> None:
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]))
+    main(Path(sys.argv[1]), sys.argv[2:])

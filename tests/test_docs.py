@@ -1,0 +1,158 @@
+"""The documentation's copies of figures stay equal to their sources: the study plots and tables shown on
+docs/reproducing.md are the studies' exported ones, and docs/agents.md's table of the two readings' defaults is
+what SGFDSettings gives."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import fields
+from decimal import ROUND_HALF_UP, Decimal
+from pathlib import Path
+
+import pytest
+
+from sb3_sgfd.sgfd.settings import SGFDSettings
+
+REPO = Path(__file__).resolve().parents[1]
+DOCS = REPO / "docs"
+STUDIES = ("mt-state", "sgfd-strength")
+
+
+def markdown_tables(text: str) -> list[list[list[str]]]:
+    """Every pipe table of ``text``: its rows (the header first, the separator left out), each a list of cells."""
+    tables: list[list[list[str]]] = []
+    current: list[list[str]] = []
+    for line in [*text.splitlines(), ""]:
+        if line.startswith("|"):
+            cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
+            if not all(set(cell) <= set("-: ") for cell in cells):
+                current.append(cells)
+        elif current:
+            tables.append(current)
+            current = []
+    return tables
+
+
+def section(text: str, heading: str) -> str:
+    """The text of the ``## `` section whose heading contains ``heading``, up to the next one."""
+    parts = re.split(r"^## ", text, flags=re.MULTILINE)
+    (match,) = [part for part in parts if heading in part.splitlines()[0]]
+    return match
+
+
+def aggregate(study: str) -> dict[str, list[list[str]]]:
+    """The study's aggregate.md: per split, its table (the header, then algo, runs per task, IQM, mean, gap and
+    the probability of improvement per algorithm)."""
+    text = (REPO / "studies" / study / "aggregate.md").read_text()
+    splits = re.findall(r"^# (\w+):", text, flags=re.MULTILINE)
+    tables = markdown_tables(text)
+    assert len(splits) == len(tables) == 3, (splits, len(tables))
+    return dict(zip(splits, tables, strict=True))
+
+
+def two_decimals(cell: str) -> str:
+    """``0.467 [0.253, 0.667]`` as the docs round it: ``0.47 [0.25, 0.67]``."""
+    return re.sub(r"\d+\.\d+", lambda m: str(Decimal(m.group()).quantize(Decimal("0.01"), ROUND_HALF_UP)), cell)
+
+
+@pytest.mark.parametrize("study", STUDIES)
+def test_the_sites_study_figure_is_the_studys_plot(study: str) -> None:
+    shown = DOCS / f"study-{study}-extrapolation.png"
+    exported = REPO / "studies" / study / "plots" / "aggregate_extrapolation.png"
+    assert shown.read_bytes() == exported.read_bytes(), f"copy {exported} to {shown}"
+    assert f"]({shown.name})" in (DOCS / "reproducing.md").read_text()
+
+
+@pytest.mark.parametrize("study", STUDIES)
+def test_the_reproducing_pages_iqm_table_is_the_studys_aggregate(study: str) -> None:
+    text = section((DOCS / "reproducing.md").read_text(), f"`studies/{study}`")
+    (table,) = [table for table in markdown_tables(text) if table[0][0] == "split"]
+    tables = aggregate(study)
+    algos = [row[0] for row in tables["train"][1:]]
+    assert len(table[0]) == 1 + len(algos), (table[0], algos)
+    shown_splits = []
+    for label, *cells in table[1:]:
+        if label.startswith("P("):
+            # the probability of improvement, "P(DR > algo), extrapolation", rounded to two decimals on the page
+            probability, split = label.split(", ")
+            assert probability == tables[split][0][-1], (label, tables[split][0])
+            expected = [two_decimals(row[-1]) for row in tables[split][1:]]
+        else:
+            shown_splits.append(label)
+            expected = [row[2] for row in tables[label][1:]]
+        assert cells == expected, (study, label, cells, expected)
+    assert shown_splits == ["train", "interpolation", "extrapolation"]
+
+
+def test_the_reproducing_pages_final_returns_are_the_strength_studys_results() -> None:
+    text = section((DOCS / "reproducing.md").read_text(), "`studies/sgfd-strength`")
+    (table,) = [table for table in markdown_tables(text) if table[0][0] == "task"]
+    results = (REPO / "studies" / "sgfd-strength" / "results.md").read_text()
+    extrapolation = results[results.index("# extrapolation") :]
+    exported = {row[0]: row[1:] for row in markdown_tables(extrapolation)[0][1:]}
+    assert len(table) - 1 == len(exported) - 1  # the export adds a total row
+    for task, *cells in table[1:]:
+        assert cells == exported[task], (task, cells, exported[task])
+
+
+def reading_value(cell: str) -> object:
+    """A cell of the readings' table as a setting's value: its first word (``1e-3 Adam``: 1e-3, ``off``: None)."""
+    word = cell.split()[0]
+    named = {"off": None, "True": True, "False": False}
+    return named[word] if word in named else float(word)
+
+
+def test_the_agents_pages_reading_defaults_are_sgfd_settings() -> None:
+    text = (DOCS / "agents.md").read_text()
+    (table,) = [table for table in markdown_tables(text) if table[0] == ["argument", "paper", "official"]]
+    paper, official = SGFDSettings.paper(), SGFDSettings.official()
+    shown = {}
+    for argument, paper_cell, official_cell in table[1:]:
+        found = re.match(r"`(\w+)`", argument)
+        assert found is not None, argument
+        shown[found.group(1)] = (reading_value(paper_cell), reading_value(official_cell))
+    for name, (paper_value, official_value) in shown.items():
+        assert (paper_value, official_value) == (getattr(paper, name), getattr(official, name)), name
+    # every setting where the readings differ is in the table, and no other
+    differ = {f.name for f in fields(SGFDSettings) if getattr(paper, f.name) != getattr(official, f.name)} - {"reading"}
+    assert set(shown) == differ, sorted(set(shown) ^ differ)
+    # the settings the page lists as the same in both readings, with their value
+    others = text[text.index("The others:") : text.index("### What it logs")]
+    listed = dict(re.findall(r"`(\w+)` \(([^),]+)", others))
+    for name, value in listed.items():
+        if name in {f.name for f in fields(SGFDSettings)}:
+            expected = None if value.split()[0] == "None" else float(value)
+            assert getattr(paper, name) == getattr(official, name) == expected, (name, value)
+    assert {"classifier_start", "classifier_hidden_dim", "n_rff", "reweight_momentum", "reweight_max_step"} <= set(
+        listed
+    )
+
+
+def test_the_demo_draws_the_tasks_asked_for_and_names_a_domain() -> None:
+    from sgfd_envs.demo import benchmark_observations, observe
+
+    rows = benchmark_observations("DCS", steps=1, image_size=16, tasks=("reacher-easy",))
+    assert [[(task, split) for task, split, _ in row] for row in rows] == [
+        [("reacher-easy", split) for split in ("train", "easy", "medium", "hard")]
+    ]
+    assert all(pixels.shape == (16, 16, 3) for _, _, pixels in rows[0])
+    with pytest.raises(ValueError, match=r"tasks must be tasks of DCS .*got \['walker-run'\]"):
+        benchmark_observations("DCS", tasks=("walker-walk", "walker-run"))
+    _, caption = observe("SGFD/MT-walker-walk-v0", "train", steps=1, image_size=16, domain=2)
+    assert caption.startswith("train 2 s4 ")
+
+
+def test_the_sites_front_page_shows_the_readmes_intro() -> None:
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("docs_hooks", DOCS / "hooks.py")
+    assert spec is not None and spec.loader is not None
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    page = hooks.on_page_markdown((DOCS / "index.md").read_text())
+    assert "<!-- README:" not in page
+    readme = (REPO / "README.md").read_text()
+    first = next(line for line in readme.splitlines() if line.startswith("Saliency-Guided Features Decorrelation"))
+    assert first in page and "](envs-overview.png)" in page and "](docs/" not in page
+    with pytest.raises(ValueError, match=r"name must be a part of README\.md"):
+        hooks.readme_part("outro", readme)
