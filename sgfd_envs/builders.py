@@ -192,6 +192,40 @@ def _check_common(env_id: str, split: str, image_size: int, render: str) -> None
     check_render(render)
 
 
+def _dmcgb_family_distraction(
+    robot: str,
+    split: str,
+    intensity: float | None,
+    data_dir: str | Path | None,
+    background_dir: str | Path | None,
+    image_size: int,
+    render: str,
+    make_mode: Callable[[Physics], Distraction],
+    **distracting_cs_kwargs: Any,
+) -> Callable[[Physics], Distraction]:
+    """Check the data kwargs DMC-GB and DMC-GB2 share, and give their distraction's factory: DMC-GB's
+    ``distracting_cs`` at ``intensity`` for that split, ``make_mode(physics)`` for the others.
+
+    :param robot: the dm_control domain
+    :param distracting_cs_kwargs: more kwargs of :func:`sgfd_envs.benchmarks.dmcgb.distracting_cs`
+    """
+    intensity = dmcgb.check_intensity(split, intensity)
+    if data_dir is not None:
+        check_data_dir(data_dir)
+    if background_dir is not None:
+        davis_folder(background_dir)
+
+    def make_distraction(physics: Physics) -> Distraction:
+        if split == dmcgb.DISTRACTING_CS:
+            assert intensity is not None  # check_intensity requires one with this split
+            return dmcgb.distracting_cs(
+                physics, robot, intensity, image_size, background_dir, render, **distracting_cs_kwargs
+            )
+        return make_mode(physics)
+
+    return make_distraction
+
+
 def make_dmcgb_env(
     env_id: str,
     split: str = "train",
@@ -221,18 +255,10 @@ def make_dmcgb_env(
     """
     entry = entry_of_kind(env_id, DMCGB)
     _check_common(env_id, split, image_size, render)
-    intensity = dmcgb.check_intensity(split, intensity)
-    if data_dir is not None:
-        check_data_dir(data_dir)
-    if background_dir is not None:
-        davis_folder(background_dir)
-
-    def make_distraction(physics: Physics) -> Distraction:
-        if split == dmcgb.DISTRACTING_CS:
-            assert intensity is not None  # check_intensity requires one with this split
-            return dmcgb.distracting_cs(physics, entry.robot, intensity, image_size, background_dir, render)
-        return dmcgb.DMCGBDistraction(physics, split, image_size, data_dir)
-
+    make_distraction = _dmcgb_family_distraction(
+        entry.robot, split, intensity, data_dir, background_dir, image_size, render,
+        lambda physics: dmcgb.DMCGBDistraction(physics, split, image_size, data_dir),
+    )  # fmt: skip
     common = {"obs_type": obs_type, "image_size": image_size, "render_mode": render_mode, "render": render}
     return _benchmark_env(
         env_id, DMCGB, split, domain, common, make_distraction, data_dir=data_dir, background_dir=background_dir
@@ -269,24 +295,15 @@ def make_dmcgb2_env(
     """
     entry = entry_of_kind(env_id, DMCGB2)
     _check_common(env_id, split, image_size, render)
-    intensity = dmcgb.check_intensity(split, intensity)
-    if data_dir is not None:
-        check_data_dir(data_dir)
-    if background_dir is not None:
-        davis_folder(background_dir)
+    make_distraction = _dmcgb_family_distraction(
+        entry.robot, split, intensity, data_dir, background_dir, image_size, render,
+        lambda physics: dmcgb2.DMCGB2Distraction(physics, entry.robot, split, image_size, data_dir, render),
+        interpolation=dmcgb2.RESIZE,
+    )  # fmt: skip
     dm_env = None
     if "video" in split:
         side = dmcgb2.projector_texture_side(image_size, render)
         dm_env = dmcgb2.load_with_projector(entry.robot, entry.task, side)
-
-    def make_distraction(physics: Physics) -> Distraction:
-        if split == dmcgb.DISTRACTING_CS:
-            assert intensity is not None  # check_intensity requires one with this split
-            return dmcgb.distracting_cs(
-                physics, entry.robot, intensity, image_size, background_dir, render, interpolation=dmcgb2.RESIZE
-            )
-        return dmcgb2.DMCGB2Distraction(physics, entry.robot, split, image_size, data_dir, render)
-
     common = {"obs_type": obs_type, "image_size": image_size, "render_mode": render_mode, "render": render}
     return _benchmark_env(
         env_id, DMCGB2, split, domain, common, make_distraction, dm_env, data_dir=data_dir,

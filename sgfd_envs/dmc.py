@@ -22,7 +22,7 @@ from dm_control.rl import control
 from gymnasium import spaces
 
 from sgfd_envs.backgrounds import BackgroundSource, composite
-from sgfd_envs.rendering import HIDE_MODES, CameraRenderer, check_render, configure_offscreen_buffer
+from sgfd_envs.rendering import CameraRenderer, check_render, configure_offscreen_buffer
 from sgfd_envs.state import HasState
 
 OBS_TYPES = ("pixels", "state")
@@ -67,10 +67,6 @@ class Distraction(Protocol):
     dm_control. Its randomness comes from the generator the env hands it, separate from the physics' seed.
     """
 
-    #: what the renderer hides and reports as background: ``"nothing"``, ``"sky"`` or ``"backdrop"``
-    #: (the skybox and every plane)
-    hide: str
-
     def start_episode(self, rng: np.random.Generator, reseeded: bool) -> None:
         """Draw this episode's distraction, after dm_control's reset.
 
@@ -86,7 +82,7 @@ class Distraction(Protocol):
     def render(self, renderer: CameraRenderer, agent_step: int) -> np.ndarray:
         """The frame of the current state: uint8 (H, W, 3).
 
-        :param renderer: the env's renderer (made with this distraction's ``hide``)
+        :param renderer: the env's renderer, which draws the whole scene (floor and skybox included)
         :param agent_step: agent steps since the reset
         """
         ...
@@ -146,8 +142,6 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
     ) -> None:
         if background is not None and distraction is not None:
             raise ValueError("give either background= or distraction=, not both")
-        if distraction is not None and distraction.hide not in HIDE_MODES:
-            raise ValueError(f"distraction.hide must be one of {HIDE_MODES}, got {distraction.hide!r}")
         if obs_type not in OBS_TYPES:
             raise ValueError(f"obs_type must be one of {OBS_TYPES}, got {obs_type!r}")
         check_image_size(image_size)
@@ -242,18 +236,18 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _frame(self) -> np.ndarray:
         if self._renderer is None:
-            hide = self._distraction.hide if self._distraction is not None else "nothing"
-            if self._background is not None:
-                hide = "backdrop"
             self._renderer = CameraRenderer(
-                self._dm_env.physics, self.image_size, self._camera_id, hide=hide, render=self.render_setting
+                self._dm_env.physics,
+                self.image_size,
+                self._camera_id,
+                hide_backdrop=self._background is not None,
+                render=self.render_setting,
             )
         if self._distraction is not None:
             return self._distraction.render(self._renderer, self._agent_steps)
-        rgb, coverage = self._renderer.render()
         if self._background is None:
-            return rgb
-        assert coverage is not None  # the renderer hides the backdrop, so it reports the coverage
+            return self._renderer.render()
+        rgb, coverage = self._renderer.render_with_coverage()
         start = int(self._background_phase * self._background.n_frames)
         index = start + self._agent_steps
         return composite(rgb, coverage, self._background.frame(index))
@@ -283,11 +277,13 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._background is not None:
             self._background_phase = float(self.np_random.random())
         if self._distraction is not None:
-            reseeded = seed is not None or self._distraction_rng is None
-            if reseeded or self._distraction_rng is None:
+            # A seed, or the first reset, (re)starts the distraction's generator and its sequences.
+            if seed is not None or self._distraction_rng is None:
                 entropy = None if seed is None else [int(seed), DISTRACTION_SEED_STREAM]
                 self._distraction_rng = np.random.default_rng(entropy)
-            self._distraction.start_episode(self._distraction_rng, reseeded)
+                self._distraction.start_episode(self._distraction_rng, reseeded=True)
+            else:
+                self._distraction.start_episode(self._distraction_rng, reseeded=False)
         return self._observation(time_step.observation), self._info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:

@@ -30,9 +30,12 @@ SPLITS: dict[str, tuple[str, ...]] = {
     DMCGB2: dmcgb2.MODES,
     DCS: dcs.SPLITS,
 }
-# Splits that take a parameter (``intensity=``), so not in SPLITS (whose splits every periodic evaluation plays):
-# DMC-GB's distracting_cs, which DMC-GB2 tests on too. evaluation_modes() lists them once per value.
-PARAMETRIC_SPLITS: dict[str, tuple[str, ...]] = {DMCGB: (dmcgb.DISTRACTING_CS,), DMCGB2: (dmcgb.DISTRACTING_CS,)}
+# Splits that take a parameter, so not in SPLITS (whose splits every periodic evaluation plays): per kind,
+# {split: (the kwarg that takes the parameter, its values)}. DMC-GB's distracting_cs (intensity=), which DMC-GB2
+# tests on too. evaluation_modes() lists them once per value.
+ParameterTable = dict[str, tuple[str, tuple[float, ...]]]
+_DISTRACTING_CS: ParameterTable = {dmcgb.DISTRACTING_CS: ("intensity", dmcgb.INTENSITIES)}
+PARAMETRIC_SPLITS: dict[str, ParameterTable] = {DMCGB: _DISTRACTING_CS, DMCGB2: _DISTRACTING_CS}
 
 
 @dataclass(frozen=True)
@@ -142,7 +145,7 @@ def test_splits(env_id: str) -> tuple[str, ...]:
 
 def check_benchmark_split(env_id: str, split: str) -> str:
     """Return ``split`` if it is a split of the benchmark id ``env_id``, else raise naming the allowed ones."""
-    allowed = splits(env_id) + PARAMETRIC_SPLITS.get(task_entry(env_id).variation, ())
+    allowed = splits(env_id) + tuple(PARAMETRIC_SPLITS.get(task_entry(env_id).variation, {}))
     if split not in allowed:
         raise ValueError(f"split must be one of {allowed} for {benchmark_of(env_id)} ids, got {split!r}")
     return split
@@ -167,14 +170,15 @@ def n_domains(env_id: str, split: str = "train", **env_kwargs) -> int:
 
 def evaluation_modes(env_id: str) -> tuple[tuple[str, dict[str, Any]], ...]:
     """What ``sgfd-zoo evaluate`` tests a model on: ``(label, kwargs)`` per split, the label the split's name and
-    the kwargs its ``split=`` (and more): DMC-GB's and DMC-GB2's ``distracting_cs`` once per intensity, labelled
-    ``distracting_cs_<intensity>``, as DMC-GB2 reports it.
+    the kwargs its ``split=`` (and more): a split of :data:`PARAMETRIC_SPLITS` once per value of its parameter,
+    labelled ``<split>_<value>`` (DMC-GB's and DMC-GB2's ``distracting_cs`` once per intensity,
+    ``distracting_cs_<intensity>``, as DMC-GB2 reports it).
 
     :param env_id: one of :data:`ENV_IDS`
     """
     modes: list[tuple[str, dict[str, Any]]] = [(split, {"split": split}) for split in splits(env_id)]
-    for split in PARAMETRIC_SPLITS.get(task_entry(env_id).variation, ()):
-        modes += [(f"{split}_{i:g}", {"split": split, "intensity": i}) for i in dmcgb.INTENSITIES]
+    for split, (kwarg, values) in PARAMETRIC_SPLITS.get(task_entry(env_id).variation, {}).items():
+        modes += [(f"{split}_{value:g}", {"split": split, kwarg: value}) for value in values]
     return tuple(modes)
 
 

@@ -1,16 +1,17 @@
 """DMC-GB2 (DMCGB2/ ids): camera poses inside each geometric mode's range, walked one per episode; a rolled camera
 turns the picture, not the scene; colours in order from a seeded index; the video screen behind the robot;
-hard farther from train than easy."""
+hard farther from train than easy; the video texture's side and resize, the benchmark's or the fast path's."""
 
+import cv2
 import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
 
-from sgfd_envs.benchmarks import dmcgb2
+from sgfd_envs.benchmarks import dcs, dmcgb2
 from sgfd_envs.benchmarks.dmcgb2 import EASY_SHIFT_DIVISOR, SHIFT_LIMITS, rotation_angles, shift_angles
 from sgfd_envs.benchmarks.media import dmcgb_clips, procedural_colour_set
-from sgfd_envs.benchmarks.scene import rotation_x, rotation_y, rotation_z
+from sgfd_envs.benchmarks.scene import rotation_x, rotation_y, rotation_z, video_texture
 
 SIZE = 32
 
@@ -165,3 +166,14 @@ def test_hard_modes_are_farther_from_train_than_easy_ones():
             assert easy > 5 and hard > 5, family
         else:
             assert 0 < easy < hard, family
+
+
+def test_the_video_texture_is_the_benchmarks_or_twice_the_image_resized_by_area():
+    # The benchmark's side and resize; the fast path's twice the observation's side, never above the benchmark's.
+    assert video_texture(256, cv2.INTER_CUBIC, 84, "benchmark") == (256, cv2.INTER_CUBIC)
+    assert video_texture(256, cv2.INTER_CUBIC, 84, "fast") == (168, cv2.INTER_AREA)
+    assert video_texture(256, cv2.INTER_CUBIC, 200, "fast") == (256, cv2.INTER_AREA)
+    assert (dmcgb2.projector_texture_side(84), dmcgb2.projector_texture_side(84, "fast")) == (256, 168)
+    assert (dcs.sky_texture_side(84), dcs.sky_texture_side(84, "fast")) == (800, 168)
+    with pytest.raises(ValueError, match=r"render must be one of \('benchmark', 'fast'\), got 'quick'"):
+        video_texture(256, cv2.INTER_CUBIC, 84, "quick")

@@ -40,7 +40,7 @@ import numpy as np
 from dm_control.mujoco import Physics
 
 from sgfd_envs.benchmarks.media import ClipBank, davis_clips
-from sgfd_envs.benchmarks.scene import TextureSlot, object_id, rotation_x, rotation_z
+from sgfd_envs.benchmarks.scene import TextureSlot, object_id, rotation_x, rotation_z, video_texture
 from sgfd_envs.rendering import CameraRenderer
 
 NAME = "DCS"
@@ -86,6 +86,8 @@ DIFFICULTIES: dict[str, tuple[float, int | None]] = {
 GROUND_ALPHA = {"reacher": 0.0, "walker": 1.0, "cheetah": 1.0}
 DEFAULT_GROUND_ALPHA = 0.3
 SKY_TEXTURE_SIDE = 800
+# How DCS resizes a DAVIS frame to the sky texture (tf.image.resize, bilinear), in OpenCV.
+RESIZE = cv2.INTER_LINEAR
 # Most environments start their camera 4 m away; the camera's velocities scale with start radius / 4.
 _REFERENCE_RADIUS = 4.0
 
@@ -93,7 +95,7 @@ _REFERENCE_RADIUS = 4.0
 def sky_texture_side(image_size: int, render: str = "benchmark") -> int:
     """Side of the sky texture the video is written to: DCS's 800, or with ``render="fast"`` twice the
     observation's side (at most 800)."""
-    return SKY_TEXTURE_SIDE if render == "benchmark" else min(SKY_TEXTURE_SIDE, 2 * image_size)
+    return video_texture(SKY_TEXTURE_SIDE, RESIZE, image_size, render)[0]
 
 
 def check_distractions(distractions: Sequence[str]) -> tuple[str, ...]:
@@ -386,8 +388,6 @@ class DCSDistraction:
     :param interpolation: OpenCV interpolation closest to the benchmark's resize of a DAVIS frame
     """
 
-    hide = "nothing"
-
     def __init__(
         self,
         physics: Physics,
@@ -403,7 +403,7 @@ class DCSDistraction:
         camera_id: int = 0,
         update_every: int = 1,
         render: str = "benchmark",
-        interpolation: int = cv2.INTER_LINEAR,
+        interpolation: int = RESIZE,
     ) -> None:
         if background_videos not in VIDEO_SPLITS:
             raise ValueError(f"background_videos must be one of {VIDEO_SPLITS}, got {background_videos!r}")
@@ -417,8 +417,7 @@ class DCSDistraction:
         self.colour: ColourWalk | None = None
         if "background" in distractions:
             videos = DAVIS_VIDEOS[background_videos][:n_videos]
-            side = sky_texture_side(image_size, render)
-            resize = interpolation if render == "benchmark" else cv2.INTER_AREA
+            side, resize = video_texture(SKY_TEXTURE_SIDE, interpolation, image_size, render)
             clips = davis_clips(videos, background_videos, side, background_dir, resize)
             alpha = GROUND_ALPHA.get(domain, DEFAULT_GROUND_ALPHA)
             self.background = SkyVideo(physics, clips, dynamic, alpha, side)
@@ -476,4 +475,4 @@ class DCSDistraction:
         if self.background is not None:
             self.background.upload(renderer)
         overrides = self.camera.overrides() if self.camera is not None else []
-        return renderer.render(overrides)[0]
+        return renderer.render(overrides)

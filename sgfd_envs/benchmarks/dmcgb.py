@@ -197,7 +197,6 @@ class DMCGBDistraction:
         if mode not in MODES[1:]:
             raise ValueError(f"mode must be one of {MODES[1:]}, got {mode!r}")
         self.mode = mode
-        self.hide = "nothing"
         self._scene_colours: SceneColours | None = None
         self._clips: ClipBank | None = None
         self._green_screen: GreenScreen | None = None
@@ -242,10 +241,10 @@ class DMCGBDistraction:
     def render(self, renderer: CameraRenderer, agent_step: int) -> np.ndarray:
         if self._scene_colours is not None:
             self._scene_colours.upload(renderer)
-            return renderer.render()[0]
+            return renderer.render()
         # a video mode, rendered after start_episode drew the episode's clip
         assert self._green_screen is not None and self._clips is not None and self.clip_index is not None
         self._green_screen.upload(renderer)
-        rgb = renderer.render()[0]
+        rgb = renderer.render()
         keyed = green_screen_mask(rgb)[..., np.newaxis]
         return np.where(keyed, self._clips.clip(self.clip_index).frame(agent_step), rgb)

@@ -40,7 +40,15 @@ from dm_control.rl import control
 from sgfd_envs import domains
 from sgfd_envs.benchmarks.dmcgb import SceneColours
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
-from sgfd_envs.benchmarks.scene import TextureSlot, camera_frame_override, object_id, rotation_x, rotation_y, rotation_z
+from sgfd_envs.benchmarks.scene import (
+    TextureSlot,
+    camera_frame_override,
+    object_id,
+    rotation_x,
+    rotation_y,
+    rotation_z,
+    video_texture,
+)
 from sgfd_envs.morphology import find_child
 from sgfd_envs.rendering import CameraRenderer
 
@@ -112,7 +120,7 @@ def shift_angles(domain: str, difficulty: str) -> np.ndarray:
 def projector_texture_side(image_size: int, render: str = "benchmark") -> int:
     """Side of the screen's texture: DMC-GB2's 256, or with ``render="fast"`` twice the observation's side (at most
     256)."""
-    return PROJECTOR_TEXTURE_SIDE if render == "benchmark" else min(PROJECTOR_TEXTURE_SIDE, 2 * image_size)
+    return video_texture(PROJECTOR_TEXTURE_SIDE, RESIZE, image_size, render)[0]
 
 
 def load_with_projector(domain: str, task: str, texture_side: int) -> control.Environment:
@@ -165,8 +173,6 @@ class DMCGB2Distraction:
     :param render: ``"benchmark"`` or ``"fast"``: the screen texture's side and resize (module docstring)
     """
 
-    hide = "nothing"
-
     def __init__(
         self,
         physics: Physics,
@@ -187,8 +193,7 @@ class DMCGB2Distraction:
         self._scene_colours = SceneColours(physics, colour_set(difficulty, data_dir)) if "color" in parts else None
         self._clips: ClipBank | None = None
         if "video" in parts:
-            side = projector_texture_side(image_size, render)
-            resize = RESIZE if render == "benchmark" else cv2.INTER_AREA
+            side, resize = video_texture(PROJECTOR_TEXTURE_SIDE, RESIZE, image_size, render)
             self._clips = dmcgb_clips(f"video_{difficulty}", side, data_dir, interpolation=resize)
             self._screen = TextureSlot(physics, _PROJECTOR)
             self._screen_side = side
@@ -278,4 +283,4 @@ class DMCGB2Distraction:
                 self._shown_frame = (self.clip_index, agent_step)
             self._screen.upload_if_changed(renderer)
             overrides.append((self._physics.data.site_xpos, self._screen_site, self.screen_position()))
-        return renderer.render(overrides)[0]
+        return renderer.render(overrides)

@@ -11,12 +11,13 @@ import functools
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 
+import cv2
 import mujoco
 import numpy as np
 from dm_control.mujoco import Physics
 from dm_control.suite import common
 
-from sgfd_envs.rendering import CameraRenderer
+from sgfd_envs.rendering import CameraRenderer, check_render
 
 # dm_control's shared assets: the skybox texture is in skybox.xml, the floor's grid texture in materials.xml.
 _ASSET_OF_TEXTURE = {"skybox": "./common/skybox.xml", "grid": "./common/materials.xml"}
@@ -77,6 +78,22 @@ def suite_texture_data(name: str, **changes: str) -> np.ndarray:
         raise ValueError(f"only rgb1, rgb2 and markrgb of a texture can change, got {sorted(unknown)}")
     attributes.update(changes)
     return _compiled_texture(tuple(sorted(attributes.items())))
+
+
+def video_texture(benchmark_side: int, benchmark_resize: int, image_size: int, render: str) -> tuple[int, int]:
+    """The side of the square texture a benchmark writes video frames into, and the OpenCV interpolation that
+    resizes the frames to it: the benchmark's own with ``render="benchmark"``; with ``"fast"`` twice the
+    observation's side (never more than the benchmark's), resized by pixel area.
+
+    :param benchmark_side: the benchmark's texture side
+    :param benchmark_resize: OpenCV's interpolation closest to the benchmark's resize
+    :param image_size: the observation's height and width
+    :param render: one of :data:`sgfd_envs.rendering.RENDER_MODES`
+    :return: ``(side, interpolation)``
+    """
+    if check_render(render) == "benchmark":
+        return benchmark_side, benchmark_resize
+    return min(benchmark_side, 2 * image_size), cv2.INTER_AREA
 
 
 class TextureSlot:
