@@ -1,5 +1,5 @@
 """The benchmarks' own ways of making a distracted frame, re-implemented from their descriptions: one place for
-both ``bench/env_throughput.py`` (which times them) and ``tests/test_benchmarks_pixels.py`` (which checks that our
+both ``bench/env_throughput.py`` (which times them) and ``tests/envs/test_benchmarks_pixels.py`` (which checks that our
 ids make the same pixels). Each method edits a dm_control scene the way the benchmark's code does (XML for DMC-GB's
 green screen, the texture bytes and a site for DMC-GB2's screen, the sky texture, the floor's alpha and the camera's
 pose for the Distracting Control Suite) and renders with dm_control's ``physics.render``. Only dm_control, MuJoCo,

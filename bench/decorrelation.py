@@ -1,6 +1,6 @@
 """How well SGFD's sample weights decorrelate, and how fast they are computed.
 
-Synthetic batches (tests/sgfd_synthetic.py): n = 128 samples from 4 domains, one domain feature tied to 4
+Synthetic batches (sgfd_analysis/synthetic.py): n = 128 samples from 4 domains, one domain feature tied to 4
 others, the rest noise, all tanh-squashed. For each seed a DomainClassifier is trained on 8192 other samples
 of the same distribution (300 Adam steps on minibatches of 256; held-out accuracy ~0.98, above SGFD's 0.9
 threshold), then feature_probabilities and learn_sample_weights run on the batch. Reported: mean |weighted
@@ -25,17 +25,12 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
 from collections.abc import Callable, Iterator
-from pathlib import Path
 
 import gymnasium as gym
 import torch
 from torch import Tensor, nn
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from sgfd_synthetic import DomainBatch, ScaledLogits, make_domain_batch
 
 from sb3_sgfd.sgfd.decorrelation import (
     WeightMemory,
@@ -55,6 +50,7 @@ from sb3_sgfd.sgfd.saliency import (
 from sb3_sgfd.sgfd.settings import SGFDSettings
 from sgfd_analysis.correlation import collect_states, standardised_sample, state_names
 from sgfd_analysis.correlation import train_domain_classifier as correlation_classifier
+from sgfd_analysis.synthetic import DomainBatch, ScaledLogits, make_domain_batch
 
 N_BATCH, N_TRAIN, N_DOMAINS = 128, 8192, 4  # the memory rows use 40 of the training batches
 # Each reading's solver settings, as SGFD_SAC runs them (solve_weights has no defaults of its own).

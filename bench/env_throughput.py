@@ -24,7 +24,7 @@ methods are re-implemented from their code's description, on procedural frames o
 
 The benchmarks' per-frame methods (the green screen's HSV loop, DMC-GB2's screen write and torso follow, DCS's
 floor, sky write and camera pose) are ``bench/benchmark_methods.py``'s, the very functions with which
-``tests/test_benchmarks_pixels.py`` checks that ours and theirs make the same pixels on the same state (all rows
+``tests/envs/test_benchmarks_pixels.py`` checks that ours and theirs make the same pixels on the same state (all rows
 but the background one); this script measures the cost.
 
 Usage: ``python bench/env_throughput.py [--steps 40] [--rounds 3]``

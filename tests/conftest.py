@@ -1,8 +1,5 @@
 """Shared pytest setup."""
 
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 
@@ -13,10 +10,6 @@ import sgfd_envs  # noqa: F401
 # The networks in these tests are tiny: torch's intra-op threads only fight each other (and the
 # renderer) for the CPU. One thread makes the suite several times faster on 2 cores.
 torch.set_num_threads(1)
-
-# The benchmarks' own per-frame methods live in bench/benchmark_methods.py, one copy for the bench that times them
-# and the tests that check their pixels: importable here as ``benchmark_methods``.
-sys.path.append(str(Path(__file__).resolve().parents[1] / "bench"))
 
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's, which reads the groups

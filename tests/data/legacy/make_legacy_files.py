@@ -1,4 +1,4 @@
-"""Writes the files that tests/test_legacy_files.py loads: a model and a replay buffer of every agent, and a
+"""Writes the files that tests/agents/test_legacy_files.py loads: a model and a replay buffer of every agent, and a
 zoo run folder with a checkpoint, as one version of the code saved them.
 
 The files under ``0.1.0/`` were written by this script at commit f8368d4, before the algorithms moved to one

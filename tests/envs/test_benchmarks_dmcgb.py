@@ -10,9 +10,9 @@ import mujoco
 import numpy as np
 import pytest
 import torch
-from benchmark_methods import interior
 from dm_control.mujoco import wrapper
 
+from bench.benchmark_methods import interior
 from sgfd_envs.benchmarks import dmcgb
 from sgfd_envs.benchmarks.media import (
     COLOUR_KEYS,

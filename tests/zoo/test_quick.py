@@ -22,7 +22,7 @@ from sgfd_zoo.cli import main as zoo_main
 from sgfd_zoo.plot import draw_env, load_curves
 from sgfd_zoo.runs import FINISHED_MARKER, RunFolder
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ENV_ID = "SGFD/MT-walker-walk-v0"
 NAME = "SGFD-MT-walker-walk-v0"
 TINY = ["--quick", "--num-threads", "1", "--no-progress", "--verbose", "0", "--save-freq", "100"]

@@ -13,7 +13,7 @@ import pytest
 
 from sb3_sgfd.sgfd.settings import SGFDSettings
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"
 STUDIES = ("mt-state", "sgfd-strength")
 

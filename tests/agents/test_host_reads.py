@@ -7,12 +7,12 @@ from typing import Any
 
 import numpy as np
 import pytest
-from host_reads import HostReads
 from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecFrameStack, VecTransposeImage
 
 import sgfd_envs
 from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, AMBSPolicy, CnnPolicy, DomainReplayBuffer, MlpPolicy
+from tests.agents.host_reads import HostReads
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 COMMON = dict(learning_starts=64, batch_size=16, seed=0, policy_kwargs=dict(net_arch=[16, 16]))

@@ -23,7 +23,6 @@ from pathlib import Path
 import pytest
 import yaml
 from stable_baselines3 import SAC
-from zoo_runs import ENV_ID, NAME, SETTINGS, Training, has_checkpoint, train_args, zoo
 
 import sgfd_envs
 from sgfd_zoo import locks
@@ -33,6 +32,7 @@ from sgfd_zoo.files import TMP_PREFIX, temporary_path
 from sgfd_zoo.locks import LOCK_FILE, RunLock, RunLocked, live_holder, read_holder
 from sgfd_zoo.runs import STEPS_KEY, RunFolder, find_runs
 from sgfd_zoo.sweep_plan import Job, locked_runs
+from tests.zoo.zoo_runs import ENV_ID, NAME, SETTINGS, Training, has_checkpoint, train_args, zoo
 
 # -- runs started together ---------------------------------------------------------------------------------
 
@@ -87,7 +87,7 @@ def test_a_run_records_its_train_command_once_and_runs_of_earlier_versions_still
     unknown = RunFolder(tmp_path / "sac" / f"{NAME}_2")  # started from Python: no command to record
     unknown.record_start({}, {}, None, step=0)
     assert not (unknown.config_dir / "command.txt").exists() and unknown.train_argv() is None
-    legacy = Path(__file__).parent / "data" / "legacy" / "0.1.0" / "train_folder" / "sgfd_sac" / f"{NAME}_1"
+    legacy = Path(__file__).parents[1] / "data" / "legacy" / "0.1.0" / "train_folder" / "sgfd_sac" / f"{NAME}_1"
     assert (legacy / NAME / "command.txt").exists() and RunFolder(legacy).train_argv() is None  # never recorded flags
 
 

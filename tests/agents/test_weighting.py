@@ -6,8 +6,6 @@ import math
 
 import pytest
 import torch
-from sgfd_synthetic import make_domain_batch
-from test_reweighting import seeded, tied_correlation, top_probs
 from torch import Tensor, nn
 from torch.nn import functional as F
 
@@ -25,6 +23,8 @@ from sb3_sgfd.sgfd.official_reading import (
 from sb3_sgfd.sgfd.paper_reading import PaperWeighting
 from sb3_sgfd.sgfd.settings import SGFDSettings
 from sb3_sgfd.sgfd.weighting import Step
+from sgfd_analysis.synthetic import make_domain_batch
+from tests.agents.test_reweighting import seeded, tied_correlation, top_probs
 
 TINY = dict(learning_starts=100, batch_size=32, policy_kwargs=dict(net_arch=[32, 32]), seed=0)
 

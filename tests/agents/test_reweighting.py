@@ -6,7 +6,6 @@ import math
 
 import pytest
 import torch
-from sgfd_synthetic import DomainBatch, make_domain_batch
 from torch import Tensor
 
 from sb3_sgfd.sgfd.decorrelation import (
@@ -18,6 +17,7 @@ from sb3_sgfd.sgfd.decorrelation import (
     random_fourier_features,
     weighted_pearson,
 )
+from sgfd_analysis.synthetic import DomainBatch, make_domain_batch
 
 
 def seeded(seed: int) -> torch.Generator:

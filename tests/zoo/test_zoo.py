@@ -296,7 +296,7 @@ def test_zoo_error_reports_missing_checkpoint_for_resume(tmp_path):
 
 
 # SAC, SGFD_SAC and AMBS are killed and resumed in the bit-for-bit test below; here two other objectives (SGQN's
-# save and load: tests/test_encoder_sac.py; its pixel run here took 4 minutes).
+# save and load: tests/agents/test_encoder_sac.py; its pixel run here took 4 minutes).
 @pytest.mark.slow
 @pytest.mark.parametrize("algo", ["dbc", "ted"])
 def test_a_killed_run_resumes_from_its_last_checkpoint(algo, tmp_path):

@@ -38,7 +38,6 @@ import ray
 import stable_baselines3.common.base_class
 import stable_baselines3.common.off_policy_algorithm
 from stable_baselines3.common.save_util import load_from_pkl
-from zoo_runs import ENV_ID, NAME, SETTINGS, TINY_PARAMS, Training, has_checkpoint, train_args, zoo
 
 import sgfd_envs.dmc
 from sgfd_zoo import sweep, training
@@ -46,6 +45,7 @@ from sgfd_zoo.checkpoints import read_index, remove_checkpoint_files
 from sgfd_zoo.cli import main as zoo_main
 from sgfd_zoo.locks import LOCK_FILE, RunLock
 from sgfd_zoo.runs import FINISHED_MARKER, RunFolder
+from tests.zoo.zoo_runs import ENV_ID, NAME, SETTINGS, TINY_PARAMS, Training, has_checkpoint, train_args, zoo
 
 
 def printed_command(line: str, after: str) -> list[str]:

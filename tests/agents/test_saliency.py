@@ -6,7 +6,6 @@ from functools import cache
 
 import pytest
 import torch
-from sgfd_synthetic import DomainBatch, ScaledLogits, make_domain_batch
 from torch import nn
 from torch.nn import functional as F
 
@@ -18,6 +17,7 @@ from sb3_sgfd.sgfd.saliency import (
     saliency_map,
     scored_feature_probabilities,
 )
+from sgfd_analysis.synthetic import DomainBatch, ScaledLogits, make_domain_batch
 
 N_TRAIN = 4096
 

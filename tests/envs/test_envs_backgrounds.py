@@ -12,9 +12,9 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
-from benchmark_methods import interior
 from dm_control import suite
 
+from bench.benchmark_methods import interior
 from sgfd_envs.backgrounds import (
     PROCEDURAL_SEEDS,
     ImageBackground,

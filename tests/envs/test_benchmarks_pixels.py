@@ -7,9 +7,9 @@ import cv2
 import gymnasium as gym
 import numpy as np
 import pytest
-from benchmark_methods import SIZE, dcs_look_at_point, dcs_sky, disagreement, dmcgb2_screen, dmcgb_green_screen
 from PIL import Image
 
+from bench.benchmark_methods import SIZE, dcs_look_at_point, dcs_sky, disagreement, dmcgb2_screen, dmcgb_green_screen
 from sgfd_envs.backgrounds import ProceduralBackground
 from sgfd_envs.benchmarks import dcs, dmcgb, dmcgb2
 from sgfd_envs.benchmarks.media import DMCGB_CLIP_COUNTS

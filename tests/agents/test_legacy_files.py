@@ -20,7 +20,7 @@ from stable_baselines3 import SAC
 
 from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, DomainReplayBuffer
 
-LEGACY = Path(__file__).parent / "data" / "legacy" / "0.1.0"
+LEGACY = Path(__file__).parents[1] / "data" / "legacy" / "0.1.0"
 ALGOS = {
     "sac": SAC,
     "sgfd_sac": SGFD_SAC,

@@ -1,0 +1,1 @@
+"""Tests of sb3_sgfd: the agents, their math, buffers and policies."""

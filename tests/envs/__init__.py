@@ -1,0 +1,1 @@
+"""Tests of sgfd_envs: the ids, their domains, and each benchmark's pixels."""

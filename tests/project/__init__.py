@@ -1,0 +1,1 @@
+"""Tests of the project as a whole: installs, the wheel, docs, examples, layering, the device check."""
