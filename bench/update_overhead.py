@@ -46,7 +46,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecTranspose
 
 import sgfd_envs
 from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, AMBSPolicy, CnnPolicy, DomainReplayBuffer, MlpPolicy
-from sb3_sgfd.sgfd.saliency import classifier_accuracy, feature_probabilities
+from sb3_sgfd.sgfd.functional import classifier_accuracy, feature_probabilities
 from sgfd_envs.backgrounds import overlay_bank
 
 PHASES = ("steady", "classifier", "mixed")

@@ -31,8 +31,15 @@ from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global fig
 from matplotlib.patches import Rectangle
 
 import sgfd_envs
-from sb3_sgfd.sgfd.decorrelation import effective_sample_size, learn_sample_weights, weighted_pearson
-from sb3_sgfd.sgfd.saliency import DomainClassifier, classifier_accuracy, feature_probabilities, train_classifier
+from sb3_sgfd.sgfd.functional import (
+    classifier_accuracy,
+    effective_sample_size,
+    feature_probabilities,
+    learn_sample_weights,
+    train_classifier,
+    weighted_pearson,
+)
+from sb3_sgfd.sgfd.weighting import DomainClassifier
 from sgfd_zoo.arguments import ZooError
 
 WEIGHTINGS = ("raw", "global", "sgfd")

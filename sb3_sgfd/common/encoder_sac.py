@@ -10,17 +10,17 @@
   :mod:`sb3_sgfd.common.representation`), and per-sample weights of the critic and actor losses (``_batch_weights``,
   which :class:`sb3_sgfd.SGFD_SAC` overrides).
 
-``EncoderSAC.train`` is a twin of ``SAC.train``: the lines marked ``# +`` are what it adds. With its defaults
-(no augmentation, no objective, ``encoder_tau = tau``, actor every step, no clipping) it takes SB3 SAC's steps
-bit for bit (tested).
+``EncoderSAC.train`` (with ``_gradient_step``, its loop's body) is a twin of ``SAC.train``: the lines marked ``# +``
+are what it adds. With its defaults (no augmentation, no objective, ``encoder_tau = tau``, actor every step, no
+clipping) it takes SB3 SAC's steps bit for bit (tested). With ``compile_update`` the same body is captured
+(:mod:`sb3_sgfd.common.captured`).
 """
 
 from __future__ import annotations
 
 import warnings
-from collections import defaultdict
 from collections.abc import Mapping
-from typing import Any, ClassVar, cast
+from typing import Any, ClassVar, NamedTuple, cast
 
 import numpy as np
 import torch as th
@@ -36,13 +36,29 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_sgfd.common.augmentation import random_shift
 from sb3_sgfd.common.buffer_setup import N_STEPS_IGNORED_WARNING, DomainBufferMixin
 from sb3_sgfd.common.buffers import DomainReplayBuffer
+from sb3_sgfd.common.captured import FINITE_CHECK_UPDATES, CapturedUpdateMixin
 from sb3_sgfd.common.policies import CnnPolicy, EncoderMlpPolicy, MlpPolicy, MultiInputPolicy, SGFDPolicy
 from sb3_sgfd.common.representation import REPRESENTATIONS, Batch, Representation, make_representation
-from sb3_sgfd.common.utils import finite, means_of, polyak_pairs, weighted_mean
+from sb3_sgfd.common.utils import polyak_pairs, weighted_mean
 from sb3_sgfd.common.validation import check_encoder_sac_arguments, check_sac_arguments
 
 
-class EncoderSAC(DomainBufferMixin, SAC):
+class StepPlan(NamedTuple):
+    """The host's decisions for one gradient step: a captured step is one CUDA graph per distinct plan.
+
+    :param update_actor: the actor and the entropy coefficient learn
+    :param update_target: the target networks move
+    :param objective: the representation objective's own decisions (``Representation.plan``)
+    :param weighting: the sample weighting's (SGFD_SAC's ``_weighting_plan``)
+    """
+
+    update_actor: bool
+    update_target: bool
+    objective: tuple = ()
+    weighting: tuple = ()
+
+
+class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
     """
     SAC with a critic-trained shared encoder, augmentation, an encoder target, and the hooks an encoder
     objective (``representation``) and a sample weighting need. Takes the arguments of SB3's :class:`SAC`
@@ -64,6 +80,9 @@ class EncoderSAC(DomainBufferMixin, SAC):
     :param actor_reuses_features: The actor's Q on the critic's encoder features of the step, detached (no second
         encoder pass, as the authors' codes detach the encoder); False: SB3's, the batch encoded again after the
         critic's step (the same values on states, where the features are the observations)
+    :param compile_update: Run each gradient step as captured work (:mod:`sb3_sgfd.common.captured`): on CUDA one
+        CUDA-graph replay per step plan with fused optimisers, the figures read once per log interval, what fuses
+        compiled; None: on CUDA only; False: SB3's eager step
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -117,6 +136,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
         representation: str | None = None,
         representation_kwargs: dict[str, Any] | None = None,
         actor_reuses_features: bool = True,
+        compile_update: bool | None = None,
         _init_setup_model: bool = True,
     ):
         # the objective checks its own arguments when it is built (in _setup_model: SB3's load builds no objective here)
@@ -137,6 +157,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
         self.representation = representation
         self.representation_kwargs = dict(representation_kwargs or {})
         self.actor_reuses_features = actor_reuses_features
+        self.compile_update = compile_update
         super().__init__(
             policy,
             env,
@@ -254,128 +275,132 @@ class EncoderSAC(DomainBufferMixin, SAC):
 
         # Update learning rate according to lr schedule
         self._update_learning_rate(optimizers)
-
-        ent_coef_losses, ent_coefs = [], []
-        actor_losses, critic_losses = [], []
-        self._stats: dict[str, list[float | th.Tensor]] = defaultdict(list)  # +
+        self._prepare_update()  # + the optimisers and figures of the eager or captured update
 
         for gradient_step in range(gradient_steps):
-            # Sample replay buffer
+            # Sample replay buffer (+ copied into the captured graphs' static inputs)
             replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            # For n-step replay, discount factor is gamma**n_steps (when no early termination)
-            discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
-            update_index = self._n_updates + gradient_step  # +
+            replay_data = self._update.inputs("batch", replay_data)  # +
+            # + the host's decisions for this step (which parts learn): one captured graph per plan
+            plan = self._plan(self._n_updates + gradient_step, gradient_step)
             # + views of the observations for the critic (the first also the actor's), of the next ones for its target
-            observations = self.augment(replay_data.observations)
-            next_observations = self.augment(replay_data.next_observations)
-            # + the actor and the entropy coefficient learn every `actor_update_interval` steps
-            update_actor = update_index % self.actor_update_interval == 0
-
-            # Get current Q-values estimates for each critic network
-            # using action from the replay buffer (+ per view, each with the encoder features it came from; + first,
-            # so that the actor reads the critic's features of the batch instead of encoding it again)
-            critic_outputs = [self._critic_and_features(obs, replay_data.actions) for obs in observations]
-            current_q_values = [q_values for q_values, _ in critic_outputs]
-            z = critic_outputs[0][1].detach()  # +
-
-            # We need to sample because `log_std` may have changed between two gradient steps
-            if self.use_sde:
-                self.actor.reset_noise()
-
-            if update_actor:
-                # Action by the current actor for the sampled state
-                actions_pi, log_prob = self._actor_action_log_prob(observations[0], z)
-                log_prob = log_prob.reshape(-1, 1)
-
-            ent_coef_loss = None
-            if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
-                # Important: detach the variable from the graph
-                # so we don't change it with other losses
-                # see https://github.com/rail-berkeley/softlearning/issues/60
-                ent_coef = th.exp(self.log_ent_coef.detach())
-                assert isinstance(self.target_entropy, float)
-                if update_actor:
-                    ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
-                    ent_coef_losses.append(ent_coef_loss.item())
-            else:
-                ent_coef = self.ent_coef_tensor
-
-            ent_coefs.append(ent_coef.item())
-
-            # Optimize entropy coefficient, also called
-            # entropy temperature or alpha in the paper
-            if ent_coef_loss is not None and self.ent_coef_optimizer is not None:
-                self.ent_coef_optimizer.zero_grad()
-                ent_coef_loss.backward()
-                self.ent_coef_optimizer.step()
-
-            with th.no_grad():
-                # + the target averaged over the views of the next observation (one view: SAC's target)
-                target_q_values = sum(
-                    self._target_q_values(next_obs, replay_data, ent_coef, discounts) for next_obs in next_observations
-                ) / len(next_observations)
-
-            # + per-sample weights of the critic and actor losses (SGFD) from the first view's features; None = SAC
-            critic_weights, actor_weights = self._batch_weights(replay_data, z, batch_size, update_index, update_actor)
-
-            # Compute critic loss  (+ mean over views, weighted per sample)
-            critic_loss = sum(
-                0.5 * sum(weighted_mean((current_q - target_q_values) ** 2, critic_weights) for current_q in view)
-                for view in current_q_values
-            ) / len(current_q_values)
-            # + the objective's term of the critic loss (SGQN's consistency)
-            if self.representation_model is not None:
-                extra = self.representation_model.critic_loss(
-                    self, observations[0], replay_data.actions, current_q_values[0]
-                )
-                critic_loss = critic_loss if extra is None else critic_loss + extra
-            assert isinstance(critic_loss, th.Tensor)  # for type checker
-            critic_losses.append(finite(critic_loss.item(), "critic loss", update_index))
-
-            # Optimize the critic
-            self.critic.optimizer.zero_grad()
-            critic_loss.backward()
-            self._clip_grad_norm(self.critic.optimizer)  # +
-            self.critic.optimizer.step()
-
-            # + the representation objective's own step (DBC, AMBS, TED, SGQN)
-            if self.representation_model is not None:
-                batch = Batch(replay_data, observations, next_observations, update_index)
-                for key, value in self.representation_model.update(self, batch).items():
-                    self._stats[f"{self.representation}/{key}"].append(value)
-
-            if update_actor:
-                # Min over all critic networks (+ on this step's features of the batch: no second encoder pass)
-                q_values_pi = th.cat(self._actor_q_values(observations[0], z, actions_pi), dim=1)
-                min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
-                actor_loss = weighted_mean(ent_coef * log_prob - min_qf_pi, actor_weights)  # + weighted
-                actor_losses.append(finite(actor_loss.item(), "actor loss", update_index))
-
-                # Optimize the actor
-                self.actor.optimizer.zero_grad()
-                actor_loss.backward()
-                self._clip_grad_norm(self.actor.optimizer)  # +
-                self.actor.optimizer.step()
-
-            # Update target networks
-            if gradient_step % self.target_update_interval == 0:
-                # + the encoder at its own rate
-                polyak_pairs(self._head_pairs, self.tau)
-                polyak_pairs(self._encoder_pairs, self.tau if self.encoder_tau is None else self.encoder_tau)
-                # Copy running stats, see GH issue #996
-                polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
+            observations, next_observations = self._update.run("views", self._views, replay_data)
+            # + what the weighting needs the host for before the step (SGFD's code reading: its classifier's round)
+            self._before_gradient_step(replay_data, observations, plan)
+            self._update.run(plan, self._gradient_step, replay_data, observations, next_observations, plan)  # +
 
         self._n_updates += gradient_steps
 
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/ent_coef", np.mean(ent_coefs))
-        if len(actor_losses) > 0:
-            self.logger.record("train/actor_loss", np.mean(actor_losses))
-        self.logger.record("train/critic_loss", np.mean(critic_losses))
-        if len(ent_coef_losses) > 0:
-            self.logger.record("train/ent_coef_loss", np.mean(ent_coef_losses))
-        for key, mean in zip(self._stats, means_of(self._stats.values(), self.device), strict=True):  # + one read
-            self.logger.record(key, mean)
+        # + the figures, summed on the device: read here (one read), or once per log interval when captured
+        if not self._update.capture:
+            self._log_figures()
+        elif self._n_updates - self._finite_checked >= FINITE_CHECK_UPDATES:
+            self._finite_checked = self._n_updates
+            self._figures.raise_if_not_finite()
+
+    def _gradient_step(
+        self, replay_data: Any, observations: list[th.Tensor], next_observations: list[th.Tensor], plan: StepPlan
+    ) -> None:
+        """One gradient step: the body of ``SAC.train``'s loop, with the lines marked ``# +`` added (its figures go to
+        the device, the host's decisions come in ``plan``); captured, this is one CUDA graph per plan."""
+        # For n-step replay, discount factor is gamma**n_steps (when no early termination)
+        discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
+
+        # Get current Q-values estimates for each critic network
+        # using action from the replay buffer (+ per view, each with the encoder features it came from; + first,
+        # so that the actor reads the critic's features of the batch instead of encoding it again)
+        critic_outputs = [self._critic_and_features(obs, replay_data.actions) for obs in observations]
+        current_q_values = [q_values for q_values, _ in critic_outputs]
+        z = critic_outputs[0][1].detach()  # +
+
+        # We need to sample because `log_std` may have changed between two gradient steps
+        if self.use_sde:
+            self.actor.reset_noise()
+
+        if plan.update_actor:
+            # Action by the current actor for the sampled state
+            actions_pi, log_prob = self._actor_action_log_prob(observations[0], z)
+            log_prob = log_prob.reshape(-1, 1)
+
+        ent_coef_loss = None
+        if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+            # Important: detach the variable from the graph
+            # so we don't change it with other losses
+            # see https://github.com/rail-berkeley/softlearning/issues/60
+            ent_coef = th.exp(self.log_ent_coef.detach())
+            assert isinstance(self.target_entropy, float)
+            if plan.update_actor:
+                ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
+                self.record("train/ent_coef_loss", ent_coef_loss)
+        else:
+            ent_coef = self.ent_coef_tensor
+
+        self.record("train/ent_coef", ent_coef)
+
+        # Optimize entropy coefficient, also called
+        # entropy temperature or alpha in the paper
+        if ent_coef_loss is not None and self.ent_coef_optimizer is not None:
+            self.ent_coef_optimizer.zero_grad()
+            ent_coef_loss.backward()
+            self.ent_coef_optimizer.step()
+
+        with th.no_grad():
+            # + the target averaged over the views of the next observation (one view: SAC's target)
+            target_q_values = sum(
+                self._target_q_values(next_obs, replay_data, ent_coef, discounts) for next_obs in next_observations
+            ) / len(next_observations)
+
+        # + per-sample weights of the critic and actor losses (SGFD) from the first view's features; None = SAC
+        critic_weights, actor_weights = self._batch_weights(replay_data, z, plan)
+
+        # Compute critic loss  (+ mean over views, weighted per sample)
+        critic_loss = sum(
+            0.5 * sum(weighted_mean((current_q - target_q_values) ** 2, critic_weights) for current_q in view)
+            for view in current_q_values
+        ) / len(current_q_values)
+        # + the objective's term of the critic loss (SGQN's consistency)
+        if self.representation_model is not None:
+            extra = self.representation_model.critic_loss(
+                self, observations[0], replay_data.actions, current_q_values[0]
+            )
+            critic_loss = critic_loss if extra is None else critic_loss + extra
+        assert isinstance(critic_loss, th.Tensor)  # for type checker
+        self.record("train/critic_loss", critic_loss, check_finite="critic loss")
+
+        # Optimize the critic
+        self.critic.optimizer.zero_grad()
+        critic_loss.backward()
+        self._clip_grad_norm(self.critic.optimizer)  # +
+        self.critic.optimizer.step()
+
+        # + the representation objective's own step (DBC, AMBS, TED, SGQN)
+        if self.representation_model is not None:
+            batch = Batch(replay_data, observations, next_observations, plan.objective)
+            for key, value in self.representation_model.update(self, batch).items():
+                self.record(f"{self.representation}/{key}", value)
+
+        if plan.update_actor:
+            # Min over all critic networks (+ on this step's features of the batch: no second encoder pass)
+            q_values_pi = th.cat(self._actor_q_values(observations[0], z, actions_pi), dim=1)
+            min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
+            actor_loss = weighted_mean(ent_coef * log_prob - min_qf_pi, actor_weights)  # + weighted
+            self.record("train/actor_loss", actor_loss, check_finite="actor loss")
+
+            # Optimize the actor
+            self.actor.optimizer.zero_grad()
+            actor_loss.backward()
+            self._clip_grad_norm(self.actor.optimizer)  # +
+            self.actor.optimizer.step()
+
+        # Update target networks
+        if plan.update_target:
+            # + the encoder at its own rate
+            polyak_pairs(self._head_pairs, self.tau)
+            polyak_pairs(self._encoder_pairs, self.tau if self.encoder_tau is None else self.encoder_tau)
+            # Copy running stats, see GH issue #996
+            polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
+        self._figures.end_update()  # +
 
     def _target_q_values(
         self, next_observations: th.Tensor, replay_data: Any, ent_coef: th.Tensor, discounts: th.Tensor | float
@@ -390,6 +415,10 @@ class EncoderSAC(DomainBufferMixin, SAC):
         next_q_values = next_q_values - ent_coef * next_log_prob.reshape(-1, 1)
         # td error + entropy term
         return replay_data.rewards + (1 - replay_data.dones) * discounts * next_q_values
+
+    def _views(self, replay_data: Any) -> tuple[list[th.Tensor], list[th.Tensor]]:
+        """The augmented views of a batch's observations and of its next observations (``augment`` of each)."""
+        return self.augment(replay_data.observations), self.augment(replay_data.next_observations)
 
     def augment(self, observations: th.Tensor) -> list[th.Tensor]:
         """``augmentation_views`` random shifts of a batch of images, or the batch itself without augmentation.
@@ -416,18 +445,44 @@ class EncoderSAC(DomainBufferMixin, SAC):
         return tuple(q_net(q_input) for q_net in self.critic.q_networks), features
 
     def _batch_weights(
-        self, replay_data: Any, z: th.Tensor, batch_size: int, update_index: int, update_actor: bool
+        self, replay_data: Any, z: th.Tensor, plan: StepPlan
     ) -> tuple[th.Tensor | None, th.Tensor | None]:
         """Per-sample weights (n, 1) of the critic and actor losses; None: unweighted (SAC). SGFD_SAC overrides it.
 
         :param replay_data: the replay samples
         :param z: the critic's encoder features of the first observation view (what the critic and actor train
             on), detached
-        :param batch_size: the batch size
-        :param update_index: index of this gradient step over the run
-        :param update_actor: whether the actor learns at this step (its weights are used only then)
+        :param plan: the host's decisions for this step
         """
         return None, None
+
+    def _before_gradient_step(self, replay_data: Any, observations: list[th.Tensor], plan: StepPlan) -> None:
+        """What a weighting does before the step where it needs the host (a decision, fresh batches); SGFD_SAC's
+        code reading overrides it. Nothing here.
+
+        :param replay_data: the replay samples
+        :param observations: the critic's views of the observations
+        :param plan: the host's decisions for this step
+        """
+
+    def _plan(self, update_index: int, gradient_step: int) -> StepPlan:
+        """What the host decides for the step: each part whose Python code branches on the update says so here, so
+        that one captured graph per plan replays exactly what the eager step would run.
+
+        :param update_index: index of this gradient step over the run
+        :param gradient_step: index of this gradient step in this ``train`` call (SAC's target updates count it)
+        """
+        objective = () if self.representation_model is None else self.representation_model.plan(update_index)
+        return StepPlan(
+            update_actor=update_index % self.actor_update_interval == 0,
+            update_target=gradient_step % self.target_update_interval == 0,
+            objective=objective,
+            weighting=self._weighting_plan(update_index, update_index % self.actor_update_interval == 0),
+        )
+
+    def _weighting_plan(self, update_index: int, update_actor: bool) -> tuple:
+        """The weighting's share of the plan (SGFD_SAC overrides it)."""
+        return ()
 
     def _actor_action_log_prob(self, observations: th.Tensor, z: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """The actor's actions and their log-probabilities for the batch, from the critic's features z of it when
@@ -474,12 +529,20 @@ class EncoderSAC(DomainBufferMixin, SAC):
             generators["representation"] = self.representation_model.generator
         return generators
 
-    def record(self, key: str, value: float | th.Tensor) -> None:
-        """Log a figure of this gradient step; ``train`` logs the mean over its steps."""
-        self._stats[key].append(value)
+    def _update_optimizers(self) -> list[th.optim.Optimizer]:
+        """Every optimiser a gradient step steps (SGFD_SAC adds its classifier's)."""
+        optimizers = [self.actor.optimizer, self.critic.optimizer]
+        if self.ent_coef_optimizer is not None:
+            optimizers.append(self.ent_coef_optimizer)
+        if self.representation_model is not None:
+            optimizers += [
+                getattr(self.representation_model, name) for name in self.representation_model.optimizer_names()
+            ]
+        return optimizers
 
     def _excluded_save_params(self) -> list[str]:
-        excluded = ["representation_model", "_augment_generator", "_stats", "_encoder_pairs", "_head_pairs"]
+        excluded = ["representation_model", "_augment_generator", "_encoder_pairs", "_head_pairs"]
+        excluded += ["_update", "_figures", "_finite_checked", "_optimizers_prepared"]
         return [*super()._excluded_save_params(), *excluded]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
