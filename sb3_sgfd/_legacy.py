@@ -20,7 +20,7 @@ MOVED: dict[str, tuple[str, ...]] = {
     "sb3_sgfd.weighting": ("sb3_sgfd.sgfd.weighting",),
     "sb3_sgfd.weighting_paper": ("sb3_sgfd.sgfd.paper_reading",),
     "sb3_sgfd.weighting_official": ("sb3_sgfd.sgfd.official_reading",),
-    "sb3_sgfd.reweighting": ("sb3_sgfd.sgfd.decorrelation", "sb3_sgfd.common.validation"),
+    "sb3_sgfd.reweighting": ("sb3_sgfd.sgfd.decorrelation", "sb3_sgfd.sgfd.checks", "sb3_sgfd.common.validation"),
     "sb3_sgfd.saliency": ("sb3_sgfd.sgfd.saliency",),
     "sb3_sgfd.bisimulation": ("sb3_sgfd.common.dynamics", "sb3_sgfd.dbc.losses", "sb3_sgfd.ambs.losses"),
     "sb3_sgfd.temporal": ("sb3_sgfd.ted.losses",),

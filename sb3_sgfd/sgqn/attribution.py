@@ -26,7 +26,25 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from sb3_sgfd.common.validation import check_frames, check_positive_int, check_tensor
+from sb3_sgfd.common.validation import check_positive_int
+
+
+def check_tensor(x: object, name: str, dim: int | None = None) -> None:
+    """Refuse ``x`` unless it is a tensor, with ``dim`` dimensions where given."""
+    if not isinstance(x, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
+    if dim is not None and x.dim() != dim:
+        layout = "(n, C, H, W)" if dim == 4 else f"{dim} dimensions"
+        raise ValueError(f"{name} must have shape {layout}, got {tuple(x.shape)}")
+
+
+def check_frames(channels: int, channels_per_frame: int, name: str) -> None:
+    """Refuse a frame size that does not divide the ``channels`` of the stacked images ``name``."""
+    check_positive_int(channels_per_frame=channels_per_frame)
+    if channels % channels_per_frame != 0:
+        raise ValueError(
+            f"the {channels} channels of {name} are not divisible by channels_per_frame={channels_per_frame}"
+        )
 
 
 def _float_copy(x: Tensor) -> Tensor:
