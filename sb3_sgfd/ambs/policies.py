@@ -10,7 +10,7 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-from sb3_sgfd.ambs.losses import check_reward_dim
+from sb3_sgfd.ambs.checks import check_reward_dim
 from sb3_sgfd.common.policies import MlpEncoder, PixelEncoder, SharedEncoderPolicy
 
 
