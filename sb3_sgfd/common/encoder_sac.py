@@ -36,7 +36,14 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_sgfd.common.augmentation import random_shift
 from sb3_sgfd.common.buffer_setup import N_STEPS_IGNORED_WARNING, DomainBufferMixin
 from sb3_sgfd.common.buffers import DomainReplayBuffer
-from sb3_sgfd.common.policies import CnnPolicy, EncoderMlpPolicy, MlpPolicy, MultiInputPolicy, SGFDPolicy
+from sb3_sgfd.common.policies import (
+    CnnPolicy,
+    EncoderMlpPolicy,
+    MlpPolicy,
+    MultiInputPolicy,
+    SGFDPolicy,
+    SharedEncoderPolicy,
+)
 from sb3_sgfd.common.representation import REPRESENTATIONS, Batch, Representation, make_representation
 from sb3_sgfd.common.utils import finite, means_of, polyak_pairs, weighted_mean
 from sb3_sgfd.common.validation import check_encoder_sac_arguments, check_sac_arguments
@@ -69,6 +76,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
         "MlpPolicy": MlpPolicy,
         "CnnPolicy": CnnPolicy,
+        "SharedEncoderPolicy": SharedEncoderPolicy,
         "SGFDPolicy": SGFDPolicy,
         "EncoderMlpPolicy": EncoderMlpPolicy,
         "MultiInputPolicy": MultiInputPolicy,

@@ -24,9 +24,8 @@ from sb3_sgfd.common.validation import (
     check_non_negative_int,
     check_optional_positive,
     check_positive_int,
-    check_probs,
-    check_weights,
 )
+from sb3_sgfd.sgfd.checks import check_probs, check_weights
 
 COVARIANCES = ("weighted", "literal")
 

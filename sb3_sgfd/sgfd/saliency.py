@@ -9,7 +9,8 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from sb3_sgfd.common.validation import check_domains, check_interval, check_matrix, check_positive
+from sb3_sgfd.common.validation import check_interval, check_matrix, check_positive
+from sb3_sgfd.sgfd.checks import check_domains
 
 
 class DomainClassifier(nn.Module):
