@@ -18,6 +18,7 @@ from sb3_sgfd.common.policies import (
     MultiInputPolicy,
     PixelEncoder,
     SGFDPolicy,
+    SharedEncoderPolicy,
 )
 from sb3_sgfd.dbc import DBC
 from sb3_sgfd.sgfd import SGFD_SAC, SGFDSettings
@@ -52,5 +53,6 @@ __all__ = [
     "PixelEncoder",
     "SGFDPolicy",
     "SGFDSettings",
+    "SharedEncoderPolicy",
     "__version__",
 ]

@@ -2,7 +2,9 @@
 saved then name classes by those paths (``sb3_sgfd.policies.MlpPolicy``, ``sb3_sgfd.buffers.replay``), and
 code written then imports from them (``sb3_sgfd.reweighting.learn_sample_weights``). Each old path is a module
 whose names are looked up in the modules that now hold them, so all of that keeps loading and importing; the
-classes keep their new paths, so whatever is saved from now on names those."""
+classes keep their new paths, so whatever is saved from now on names those. The buffer modules of the 0.2.0
+development versions that were folded into others are kept the same way (saved buffers name only ``replay`` and
+``dict_replay``, which stay)."""
 
 from __future__ import annotations
 
@@ -20,7 +22,12 @@ MOVED: dict[str, tuple[str, ...]] = {
     "sb3_sgfd.weighting": ("sb3_sgfd.sgfd.weighting",),
     "sb3_sgfd.weighting_paper": ("sb3_sgfd.sgfd.weighting", "sb3_sgfd.sgfd.decorrelation"),
     "sb3_sgfd.weighting_official": ("sb3_sgfd.sgfd.weighting", "sb3_sgfd.sgfd.decorrelation"),
-    "sb3_sgfd.reweighting": ("sb3_sgfd.sgfd.functional", "sb3_sgfd.sgfd.decorrelation", "sb3_sgfd.common.validation"),
+    "sb3_sgfd.reweighting": (
+        "sb3_sgfd.sgfd.functional",
+        "sb3_sgfd.sgfd.decorrelation",
+        "sb3_sgfd.sgfd.checks",
+        "sb3_sgfd.common.validation",
+    ),
     "sb3_sgfd.saliency": ("sb3_sgfd.sgfd.weighting", "sb3_sgfd.sgfd.functional"),
     # 0.1.x's sgfd/ files before the weighting was gathered in one module
     "sb3_sgfd.sgfd.saliency": ("sb3_sgfd.sgfd.weighting", "sb3_sgfd.sgfd.functional"),
@@ -37,10 +44,16 @@ MOVED: dict[str, tuple[str, ...]] = {
     "sb3_sgfd.validation": ("sb3_sgfd.common.validation",),
     "sb3_sgfd.buffers": ("sb3_sgfd.common.buffers",),
     "sb3_sgfd.buffers.replay": ("sb3_sgfd.common.buffers.replay",),
-    "sb3_sgfd.buffers.domains": ("sb3_sgfd.common.buffers.domains",),
-    "sb3_sgfd.buffers.episodes": ("sb3_sgfd.common.buffers.episodes",),
-    "sb3_sgfd.buffers.frames": ("sb3_sgfd.common.buffers.frames",),
-    "sb3_sgfd.buffers.slots": ("sb3_sgfd.common.buffers.slots",),
+    "sb3_sgfd.buffers.domains": ("sb3_sgfd.common.buffers.replay",),
+    "sb3_sgfd.buffers.episodes": ("sb3_sgfd.common.buffers.storage",),
+    "sb3_sgfd.buffers.frames": ("sb3_sgfd.common.buffers.storage",),
+    "sb3_sgfd.buffers.slots": ("sb3_sgfd.common.buffers.storage",),
+    # the buffer modules of the 0.2.0 development versions, folded into replay.py and storage.py
+    "sb3_sgfd.common.buffers.domains": ("sb3_sgfd.common.buffers.replay",),
+    "sb3_sgfd.common.buffers.nstep": ("sb3_sgfd.common.buffers.replay",),
+    "sb3_sgfd.common.buffers.episodes": ("sb3_sgfd.common.buffers.storage",),
+    "sb3_sgfd.common.buffers.frames": ("sb3_sgfd.common.buffers.storage",),
+    "sb3_sgfd.common.buffers.slots": ("sb3_sgfd.common.buffers.storage",),
 }
 
 

@@ -107,7 +107,7 @@ def check_keywords(
 ) -> None:
     """A ZooError naming the keys of ``given`` that are not in ``valid``, a close match, and the valid ones.
 
-    :param where: what the keys are given to, e.g. ``policy_kwargs of sgfd_sac (SGFDPolicy)``
+    :param where: what the keys are given to, e.g. ``policy_kwargs of sgfd_sac (MlpPolicy)``
     :param given: the keys given
     :param valid: the keys it takes
     :param message: the error's line, formatted with ``where``, ``keys`` (each unknown key with its close match)

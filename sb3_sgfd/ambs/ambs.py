@@ -130,8 +130,9 @@ class AMBSRepresentation(Representation):
         aug_h = encoder.embed(model.preprocess(second_view))
         with th.no_grad():
             next_h = encoder.embed(model.preprocess(batch.next_observations[0]))
-            # the actor reads these features (scaled by the ratio): no second pass of the encoder
-            actor = cast(DetachedEncoderActor, model.actor)  # SGFDPolicy's, as EncoderSAC requires with an objective
+            # the actor reads these features (scaled by the ratio): no second pass of the encoder; it is a
+            # SharedEncoderPolicy's, as EncoderSAC requires with an objective
+            actor = cast(DetachedEncoderActor, model.actor)
             actor_actions = actor.action_of_features(encoder.scaled(h), deterministic=True)
             h_dynamics = split_halves(h, encoder.reward_dim)[1]
             predicted = self.transition(h_dynamics, actor_actions)

@@ -24,15 +24,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from sb3_sgfd.ambs.checks import check_metric_learner, check_reward_dim, check_reward_weight
 from sb3_sgfd.common.dynamics import dimension_distances, dynamics_distance
 from sb3_sgfd.common.validation import (
     check_gamma,
     check_matrix,
-    check_metric_learner,
     check_perm,
     check_positive_int,
-    check_reward_dim,
-    check_reward_weight,
     check_rewards,
     check_same_shape,
 )

@@ -1,5 +1,5 @@
-"""AMBS's policy: the shared encoder of :class:`sb3_sgfd.common.policies.SGFDPolicy` with its features split into
-a reward half and a dynamics half, scaled by a learned ratio."""
+"""AMBS's policy: the shared encoder of :class:`sb3_sgfd.common.policies.SharedEncoderPolicy` with its features
+split into a reward half and a dynamics half, scaled by a learned ratio."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from gymnasium import spaces
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-from sb3_sgfd.common.policies import MlpEncoder, PixelEncoder, SGFDPolicy
-from sb3_sgfd.common.validation import check_reward_dim
+from sb3_sgfd.ambs.checks import check_reward_dim
+from sb3_sgfd.common.policies import MlpEncoder, PixelEncoder, SharedEncoderPolicy
 
 
 class AMBSEncoder(BaseFeaturesExtractor):
@@ -66,7 +66,7 @@ class AMBSEncoder(BaseFeaturesExtractor):
         return self.scaled(self.embed(observations))
 
 
-class AMBSPolicy(SGFDPolicy):
-    """:class:`SGFDPolicy` with AMBS's ratio-scaled :class:`AMBSEncoder` (pixel or state trunk)."""
+class AMBSPolicy(SharedEncoderPolicy):
+    """:class:`SharedEncoderPolicy` with AMBS's ratio-scaled :class:`AMBSEncoder` (pixel or state trunk)."""
 
     default_features_extractor_class = AMBSEncoder

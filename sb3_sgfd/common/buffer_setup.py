@@ -15,8 +15,7 @@ from typing import Any
 from gymnasium import spaces
 from stable_baselines3.common.type_aliases import GymEnv
 
-from sb3_sgfd.common.buffers import DomainReplayBuffer
-from sb3_sgfd.common.buffers.dict_replay import DomainDictReplayBuffer
+from sb3_sgfd.common.buffers import DomainDictReplayBuffer, DomainReplayBuffer
 from sb3_sgfd.common.representation import Representation
 
 #: SB3 warns that a custom buffer class does not take ``n_steps``: the domain buffers do (``_domain_buffer_kwargs``),
@@ -45,9 +44,7 @@ class DomainBufferMixin:
         (which no encoder objective reads), same-episode negatives for an objective that needs them (TED), the
         envs' label count and the n-step returns."""
         buffer_class = self.replay_buffer_class
-        domain_buffer = buffer_class is not None and issubclass(
-            buffer_class, (DomainReplayBuffer, DomainDictReplayBuffer)
-        )
+        domain_buffer = buffer_class is not None and issubclass(buffer_class, DOMAIN_BUFFERS)
         if isinstance(self.observation_space, spaces.Dict):
             if representation_model is not None or self.augmentation_views:
                 what = f"the {self.representation!r} representation" if representation_model else "augmentation"

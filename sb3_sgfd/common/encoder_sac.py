@@ -1,6 +1,6 @@
 """EncoderSAC: SB3's SAC with the machinery every visual-RL agent of the SGFD paper's tables shares.
 
-- the encoder is shared by actor and critic and trained by the critic (``sb3_sgfd.common.policies.SGFDPolicy``), and
+- the encoder is shared by actor and critic and trained by the critic (``sb3_sgfd.common.policies.SharedEncoderPolicy``), and
   the critic target's encoder has its own soft-update rate (``encoder_tau``, DBC/AMBS: 0.05);
 - random-shift augmentation of the critic's inputs (DrQ): one view (RAD, SGQN, TED), or two with the target
   and the critic loss averaged over them (DrQ, AMBS);
@@ -37,7 +37,14 @@ from sb3_sgfd.common.augmentation import random_shift
 from sb3_sgfd.common.buffer_setup import N_STEPS_IGNORED_WARNING, DomainBufferMixin
 from sb3_sgfd.common.buffers import DomainReplayBuffer
 from sb3_sgfd.common.captured import FINITE_CHECK_UPDATES, CapturedUpdateMixin
-from sb3_sgfd.common.policies import CnnPolicy, EncoderMlpPolicy, MlpPolicy, MultiInputPolicy, SGFDPolicy
+from sb3_sgfd.common.policies import (
+    CnnPolicy,
+    EncoderMlpPolicy,
+    MlpPolicy,
+    MultiInputPolicy,
+    SGFDPolicy,
+    SharedEncoderPolicy,
+)
 from sb3_sgfd.common.representation import REPRESENTATIONS, Batch, Representation, make_representation
 from sb3_sgfd.common.utils import polyak_pairs, weighted_mean
 from sb3_sgfd.common.validation import check_encoder_sac_arguments, check_sac_arguments
@@ -88,6 +95,7 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
         "MlpPolicy": MlpPolicy,
         "CnnPolicy": CnnPolicy,
+        "SharedEncoderPolicy": SharedEncoderPolicy,
         "SGFDPolicy": SGFDPolicy,
         "EncoderMlpPolicy": EncoderMlpPolicy,
         "MultiInputPolicy": MultiInputPolicy,
@@ -145,7 +153,7 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
         if self.fixed_representation is not None and representation != self.fixed_representation:
             raise ValueError(
                 f"{type(self).__name__} trains the {self.fixed_representation!r} representation, got "
-                f"representation={representation!r} (SGFD_SAC takes any)"
+                f"representation={representation!r} (EncoderSAC takes any)"
             )
         self.actor_update_interval = actor_update_interval
         self.encoder_tau = encoder_tau
@@ -224,10 +232,10 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
                 f"augmentation_views={self.augmentation_views} shifts images, but the observations are "
                 f"{self.observation_space}; use augmentation_views=0 on states"
             )
-        if (representation_model is not None or self.augmentation_views) and not isinstance(self.policy, SGFDPolicy):
+        if (representation_model is not None or self.augmentation_views) and not isinstance(self.policy, SharedEncoderPolicy):
             raise ValueError(
                 f"{type(self).__name__} with a representation or augmentation needs a policy whose encoder the "
-                "critic trains (sb3_sgfd.common.policies.SGFDPolicy and its subclasses), got "
+                "critic trains (sb3_sgfd.common.policies.SharedEncoderPolicy and its subclasses), got "
                 f"{type(self.policy).__name__}"
             )
         encoder = self.critic.features_extractor
@@ -488,7 +496,7 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
         """The actor's actions and their log-probabilities for the batch, from the critic's features z of it when
         the actor reads the critic's encoder (the same values SB3's actor computes, without a second pass)."""
         if self._actor_reads_critic_features:
-            return cast(SGFDPolicy, self.policy).actor.action_log_prob_of_features(z)  # self.actor is its actor
+            return cast(SharedEncoderPolicy, self.policy).actor.action_log_prob_of_features(z)  # self.actor is its actor
         return self.actor.action_log_prob(observations)
 
     def _actor_q_values(self, observations: th.Tensor, z: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
@@ -503,8 +511,8 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
 
     @property
     def _actor_reads_critic_features(self) -> bool:
-        # SGFDPolicy: one encoder, the critic's, which the actor reads detached (SB3's own SAC policies: not so).
-        return isinstance(self.policy, SGFDPolicy)
+        # SharedEncoderPolicy: one encoder, the critic's, which the actor reads detached (SB3's own SAC policies: not so).
+        return isinstance(self.policy, SharedEncoderPolicy)
 
     def _clip_grad_norm(self, optimizer: th.optim.Optimizer) -> None:
         """Clip the gradient norm of the parameters ``optimizer`` steps (the actor's exclude the shared encoder)."""

@@ -143,9 +143,10 @@ class DetachedEncoderActor(Actor):
         return self.action_dist.actions_from_params(mean_actions, log_std, deterministic=deterministic, **kwargs)
 
 
-class SGFDPolicy(SACPolicy):
+class SharedEncoderPolicy(SACPolicy):
     """
-    SAC policy with one features extractor shared by actor and critic and trained by the critic loss.
+    SAC policy with one features extractor shared by actor and critic and trained by the critic loss: the policy
+    of every agent of this package. ``SGFDPolicy`` is its former name, kept as an alias.
 
     The features extractor defaults to :class:`PixelEncoder` for image observations and to a
     flatten layer otherwise; actor and critic MLPs default to two hidden layers of 1024 (paper).
@@ -169,7 +170,7 @@ class SGFDPolicy(SACPolicy):
     ) -> None:
         if kwargs.pop("share_features_extractor", True) is not True:
             raise ValueError(
-                "share_features_extractor must be True for SGFD policies (the encoder is shared and "
+                "share_features_extractor must be True for SharedEncoderPolicy (the encoder is shared and "
                 "trained by the critic); use SB3's SACPolicy for separate encoders"
             )
         if features_extractor_class is None:
@@ -217,27 +218,31 @@ class SGFDPolicy(SACPolicy):
         return DetachedEncoderActor(**actor_kwargs).to(self.device)
 
 
-class CnnPolicy(SGFDPolicy):
-    """:class:`SGFDPolicy` with the paper's :class:`PixelEncoder`."""
+#: The former name of :class:`SharedEncoderPolicy` (yaml files, code and models saved before the rename use it)
+SGFDPolicy = SharedEncoderPolicy
+
+
+class CnnPolicy(SharedEncoderPolicy):
+    """:class:`SharedEncoderPolicy` with the paper's :class:`PixelEncoder`."""
 
     default_features_extractor_class = PixelEncoder
 
 
-class MlpPolicy(SGFDPolicy):
-    """:class:`SGFDPolicy` on flat (state) observations."""
+class MlpPolicy(SharedEncoderPolicy):
+    """:class:`SharedEncoderPolicy` on flat (state) observations."""
 
     default_features_extractor_class = FlattenExtractor
 
 
-class MultiInputPolicy(SGFDPolicy):
-    """:class:`SGFDPolicy` on Dict observations through SB3's ``CombinedExtractor`` (its images through NatureCNN,
-    the rest flattened)."""
+class MultiInputPolicy(SharedEncoderPolicy):
+    """:class:`SharedEncoderPolicy` on Dict observations through SB3's ``CombinedExtractor`` (its images through
+    NatureCNN, the rest flattened)."""
 
     default_features_extractor_class = CombinedExtractor
 
 
-class EncoderMlpPolicy(SGFDPolicy):
-    """:class:`SGFDPolicy` on flat observations through a learned :class:`MlpEncoder` (for the objectives)."""
+class EncoderMlpPolicy(SharedEncoderPolicy):
+    """:class:`SharedEncoderPolicy` on flat observations through a learned :class:`MlpEncoder` (for the objectives)."""
 
     default_features_extractor_class = MlpEncoder
 

@@ -30,7 +30,7 @@ class Agent(Protocol):
     #: the critic: its encoder (``features_extractor``, shared with the actor) and Q heads
     critic: ContinuousCritic
     critic_target: ContinuousCritic
-    #: the actor: a DetachedEncoderActor whenever an objective runs (EncoderSAC then requires an SGFDPolicy)
+    #: the actor: a DetachedEncoderActor whenever an objective runs (EncoderSAC then requires a SharedEncoderPolicy)
     actor: Actor
     observation_space: spaces.Space
     action_space: spaces.Space

@@ -4,6 +4,9 @@ the argument, the value and what was expected.
 
 Pure torch and numpy, no Stable-Baselines3 import: the math modules check their tensors with these too. A check
 that would read a GPU tensor back to the host (its values, not its shape) is only made where the caller asks.
+
+Only what more than one part of the package checks is here; a check that one algorithm alone needs lives in that
+algorithm's folder, beside the code it guards.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
 
 def check_choice(name: str, value: object, choices: Collection[str]) -> None:
@@ -204,9 +207,9 @@ def check_encoder_sac_arguments(arguments: Mapping[str, Any]) -> None:
 def check_hyperparameters(algo_class: type, hyperparameters: Mapping[str, Any]) -> None:
     """Refuse, before anything is built, a bad value of a constructor argument of ``algo_class`` among
     ``hyperparameters``: through the algorithm's own ``check_arguments`` (the agents of this package: SAC's
-    arguments, their own, SGFD's settings and the objective's ``representation_kwargs``), else SAC's checks.
+    arguments, their own and the objective's ``representation_kwargs``), else SAC's checks.
 
-    :param algo_class: the algorithm class the hyperparameters are for (e.g. ``SGFD_SAC`` or SB3's ``SAC``)
+    :param algo_class: the algorithm class the hyperparameters are for (an agent of this package or SB3's ``SAC``)
     :param hyperparameters: its keyword arguments, as the zoo's yaml gives them
     :raises ValueError: one line naming the argument, the value and what is allowed
     """
@@ -320,82 +323,3 @@ def check_perm(perm: object, n: int) -> None:
 def check_gamma(gamma: object) -> None:
     """Refuse a discount that is not a number in [0, 1)."""
     check_interval("gamma", gamma, 0.0, 1.0, high_open=True)
-
-
-def check_reward_weight(reward_weight: object) -> Tensor | float:
-    """AMBS's balance c as given: a float in [0, 1], or a 0-d float tensor, detached (a softmax ratio, in [0, 1] by
-    construction: its value is not read, which would be a host read on every gradient step)."""
-    if isinstance(reward_weight, Tensor):
-        if reward_weight.dim() != 0 or not reward_weight.is_floating_point():
-            raise ValueError(f"reward_weight must be a float or a 0-d float tensor, got shape {reward_weight.shape}")
-        return reward_weight.detach()
-    if not isinstance(reward_weight, (int, float)) or isinstance(reward_weight, bool):
-        raise ValueError(f"reward_weight must be a float or a 0-d float tensor, got {type(reward_weight).__name__}")
-    if not 0 <= reward_weight <= 1:
-        raise ValueError(f"reward_weight must be in [0, 1], got {reward_weight!r}")
-    return float(reward_weight)
-
-
-def check_reward_dim(reward_dim: object, d: int) -> None:
-    """Refuse a reward half of a d-feature representation that is not an int in [1, d - 1]."""
-    if isinstance(reward_dim, bool) or not isinstance(reward_dim, int) or not 0 < reward_dim < d:
-        raise ValueError(f"reward_dim must be an int in [1, {d - 1}] for {d} features, got {reward_dim!r}")
-
-
-def check_metric_learner(learner: object, name: str, half_dim: int) -> None:
-    """Refuse an AMBS meta-learner (a module with a ``half_dim``) that does not measure halves of ``half_dim``."""
-    learner_dim = getattr(learner, "half_dim", None)
-    if not isinstance(learner, nn.Module) or learner_dim != half_dim:
-        got = f"half_dim {learner_dim}" if learner_dim is not None else type(learner).__name__
-        raise ValueError(f"{name} must be a MetricLearner with half_dim {half_dim}, got {got}")
-
-
-def check_weights(weights: Tensor, n: int) -> None:
-    """Refuse sample weights that are not a finite, non-negative (n,) tensor with a positive sum (a host read)."""
-    if not isinstance(weights, Tensor) or weights.shape != (n,):
-        shape = tuple(weights.shape) if isinstance(weights, Tensor) else type(weights).__name__
-        raise ValueError(f"weights must be a tensor of shape ({n},), got {shape}")
-    w = weights.detach()
-    if not torch.isfinite(w).all():
-        raise ValueError("weights contains NaN or inf values")
-    if (w < 0).any() or w.sum() <= 0:
-        raise ValueError("weights must be non-negative with a positive sum")
-
-
-def check_probs(feature_probs: Tensor | None, d: int) -> None:
-    """Refuse feature probabilities p(Z_i) that are not None or a (d,) distribution (a host read)."""
-    if feature_probs is None:
-        return
-    if not isinstance(feature_probs, Tensor) or feature_probs.shape != (d,):
-        shape = tuple(feature_probs.shape) if isinstance(feature_probs, Tensor) else type(feature_probs)
-        raise ValueError(f"feature_probs must be a tensor of shape ({d},), got {shape}")
-    p = feature_probs.detach().double()
-    if not torch.isfinite(p).all() or (p < 0).any() or abs(p.sum().item() - 1.0) > 1e-4:
-        raise ValueError("feature_probs must be finite, non-negative and sum to 1")
-
-
-def check_domains(domains: Tensor, n: int) -> None:
-    """Refuse domain labels that are not an integer (n,) tensor (their values are checked where they are used)."""
-    if not isinstance(domains, Tensor) or domains.shape != (n,):
-        shape = tuple(domains.shape) if isinstance(domains, Tensor) else type(domains).__name__
-        raise ValueError(f"domains must be a tensor of shape ({n},), got {shape}")
-    if domains.is_floating_point() or domains.is_complex() or domains.dtype == torch.bool:
-        raise TypeError(f"domains must be an integer tensor of domain labels, got {domains.dtype}")
-
-
-def check_tensor(x: object, name: str, dim: int | None = None) -> None:
-    """Refuse ``x`` unless it is a tensor, with ``dim`` dimensions where given."""
-    if not isinstance(x, Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
-    if dim is not None and x.dim() != dim:
-        layout = "(n, C, H, W)" if dim == 4 else f"{dim} dimensions"
-        raise ValueError(f"{name} must have shape {layout}, got {tuple(x.shape)}")
-
-
-def check_frames(channels: int, channels_per_frame: int, name: str) -> None:
-    """Refuse a frame size that does not divide the ``channels`` of the stacked images ``name``."""
-    check_positive_int(channels_per_frame=channels_per_frame)
-    if channels % channels_per_frame != 0:
-        raise ValueError(
-            f"the {channels} channels of {name} are not divisible by channels_per_frame={channels_per_frame}"
-        )

@@ -14,16 +14,14 @@ from torch import Tensor, nn
 
 from sb3_sgfd.common.validation import (
     check_choice,
-    check_domains,
     check_interval,
     check_matrix,
     check_non_negative_int,
     check_optional_positive,
     check_positive,
     check_positive_int,
-    check_probs,
-    check_weights,
 )
+from sb3_sgfd.sgfd.checks import check_domains, check_probs, check_weights
 from sb3_sgfd.sgfd.decorrelation import (
     COVARIANCES,
     WeightMemory,

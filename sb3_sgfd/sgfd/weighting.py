@@ -28,7 +28,8 @@ from torch.nn import functional as F
 
 from sb3_sgfd.common.captured import masked_step
 from sb3_sgfd.common.tensor_state import TensorStateModule
-from sb3_sgfd.common.validation import check_domains, check_matrix
+from sb3_sgfd.common.validation import check_matrix
+from sb3_sgfd.sgfd.checks import check_domains
 from sb3_sgfd.sgfd.decorrelation import (
     WeightMemory,
     official_solution,

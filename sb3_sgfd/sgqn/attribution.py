@@ -26,7 +26,25 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from sb3_sgfd.common.validation import check_frames, check_positive_int, check_tensor
+from sb3_sgfd.common.validation import check_positive_int
+
+
+def _check_tensor(x: object, name: str, dim: int | None = None) -> None:
+    """Refuse ``x`` unless it is a tensor, with ``dim`` dimensions where given."""
+    if not isinstance(x, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
+    if dim is not None and x.dim() != dim:
+        layout = "(n, C, H, W)" if dim == 4 else f"{dim} dimensions"
+        raise ValueError(f"{name} must have shape {layout}, got {tuple(x.shape)}")
+
+
+def _check_frames(channels: int, channels_per_frame: int, name: str) -> None:
+    """Refuse a frame size that does not divide the ``channels`` of the stacked images ``name``."""
+    check_positive_int(channels_per_frame=channels_per_frame)
+    if channels % channels_per_frame != 0:
+        raise ValueError(
+            f"the {channels} channels of {name} are not divisible by channels_per_frame={channels_per_frame}"
+        )
 
 
 def _float_copy(x: Tensor) -> Tensor:
@@ -110,7 +128,7 @@ def guided_backprop(fn: Callable[[Tensor], Tensor], inputs: Tensor, module: nn.M
     """
     if not callable(fn):
         raise TypeError(f"fn must be callable, got {type(fn).__name__}")
-    check_tensor(inputs, "inputs")
+    _check_tensor(inputs, "inputs")
     x = _float_copy(inputs).clone().requires_grad_(True)
     with torch.enable_grad(), guided_relus(module):
         output = fn(x)
@@ -145,9 +163,9 @@ def attribution_mask(attribution: Tensor, channels_per_frame: int = 3, quantile:
     :param quantile: rho in (0, 1); the official default is 0.9, its DMC scripts use 0.98
     :return: bool mask of the shape of ``attribution``
     """
-    check_tensor(attribution, "attribution", dim=4)
+    _check_tensor(attribution, "attribution", dim=4)
     n, c, h, w = attribution.shape
-    check_frames(c, channels_per_frame, "attribution")
+    _check_frames(c, channels_per_frame, "attribution")
     if isinstance(quantile, bool) or not isinstance(quantile, (int, float)) or not 0 < quantile < 1:
         raise ValueError(f"quantile must be a number in (0, 1), got {quantile!r}")
     if h * w == 0:
@@ -180,8 +198,8 @@ def mask_observations(obs: Tensor, mask: Tensor, generator: torch.Generator | No
     :return: masked observations, floating point (obs's dtype if floating, else torch's default), on obs's device;
         differentiable with respect to ``obs`` where the mask is True
     """
-    check_tensor(obs, "obs")
-    check_tensor(mask, "mask")
+    _check_tensor(obs, "obs")
+    _check_tensor(mask, "mask")
     if mask.dtype != torch.bool:
         raise TypeError(f"mask must be a bool tensor, got {mask.dtype}")
     if mask.shape != obs.shape:
@@ -212,8 +230,8 @@ def consistency_loss(q_values: Sequence[Tensor], masked_q_values: Sequence[Tenso
             f"got {len(q_values)} and {len(masked_q_values)}"
         )
     for i, (q, masked) in enumerate(zip(q_values, masked_q_values, strict=True)):
-        check_tensor(q, f"q_values[{i}]")
-        check_tensor(masked, f"masked_q_values[{i}]")
+        _check_tensor(q, f"q_values[{i}]")
+        _check_tensor(masked, f"masked_q_values[{i}]")
         if q.shape != masked.shape:
             raise ValueError(
                 f"q_values[{i}] and masked_q_values[{i}] must have the same shape, "
@@ -248,10 +266,10 @@ def overlay(
         left untouched; None draws them from the global RNG
     :return: blended observations (n, C, H, W), floating point (obs's dtype if floating, else torch's default)
     """
-    check_tensor(obs, "obs", dim=4)
-    check_tensor(images, "images", dim=4)
+    _check_tensor(obs, "obs", dim=4)
+    _check_tensor(images, "images", dim=4)
     n, c, h, w = obs.shape
-    check_frames(c, channels_per_frame, "obs")
+    _check_frames(c, channels_per_frame, "obs")
     if images.shape[0] < 1 or images.shape[1:] != (channels_per_frame, h, w):
         raise ValueError(
             f"images must have shape (N >= 1, {channels_per_frame}, {h}, {w}) to match obs, got {tuple(images.shape)}"
@@ -308,8 +326,8 @@ class AttributionDecoder(nn.Module):
         """:param features: encoder features (n, features_dim)
         :param actions: actions (n, action_dim)
         :return: mask logits (n, C, H, W)"""
-        check_tensor(features, "features")
-        check_tensor(actions, "actions")
+        _check_tensor(features, "features")
+        _check_tensor(actions, "actions")
         if features.dim() != 2 or features.shape[1] != self.features_dim:
             raise ValueError(f"features must have shape (n, {self.features_dim}), got {tuple(features.shape)}")
         if actions.shape != (features.shape[0], self.action_dim):
@@ -331,8 +349,8 @@ def attribution_loss(logits: Tensor, mask: Tensor) -> Tensor:
     :param mask: target mask of the same shape, bool or floats in [0, 1]; detached
     :return: scalar loss
     """
-    check_tensor(logits, "logits")
-    check_tensor(mask, "mask")
+    _check_tensor(logits, "logits")
+    _check_tensor(mask, "mask")
     if mask.shape != logits.shape:
         raise ValueError(f"mask must have the shape of logits {tuple(logits.shape)}, got {tuple(mask.shape)}")
     return F.binary_cross_entropy_with_logits(logits, mask.detach().to(logits.dtype))

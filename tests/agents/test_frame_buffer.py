@@ -25,7 +25,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecFrameStack, VecTransposeImage
 
-import sb3_sgfd.common.buffers.frames as sgfd_frames
+import sb3_sgfd.common.buffers.storage as buffer_storage
 from sb3_sgfd.common.buffers import DomainReplayBuffer
 
 # Larger than any k * c stacked here, so that SB3 sees the stacks as channel-last images; not square, so
@@ -439,7 +439,7 @@ def test_memory_warning_counts_frames_not_stacks(monkeypatch: pytest.MonkeyPatch
     def build_with_available(available: int, frame_stack: int | None) -> list[warnings.WarningMessage]:
         fake = SimpleNamespace(virtual_memory=lambda: SimpleNamespace(available=available))
         monkeypatch.setattr(sb3_buffers, "psutil", fake)
-        monkeypatch.setattr(sgfd_frames, "psutil", fake)
+        monkeypatch.setattr(buffer_storage, "psutil", fake)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             DomainReplayBuffer(1000, space, ACTION_SPACE, device="cpu", frame_stack=frame_stack)

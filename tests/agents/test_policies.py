@@ -1,3 +1,7 @@
+import base64
+import json
+import zipfile
+
 import numpy as np
 import pytest
 import torch as th
@@ -5,13 +9,15 @@ from gymnasium import spaces
 from stable_baselines3 import SAC
 from stable_baselines3.common.utils import ConstantSchedule
 
-from sb3_sgfd.common.policies import CnnPolicy, MlpPolicy, PixelEncoder, SGFDPolicy
+import sb3_sgfd
+from sb3_sgfd import EncoderSAC
+from sb3_sgfd.common.policies import CnnPolicy, MlpPolicy, PixelEncoder, SharedEncoderPolicy
 
 IMAGE_SPACE = spaces.Box(0, 255, shape=(9, 32, 32), dtype=np.uint8)
 ACTION_SPACE = spaces.Box(-1, 1, shape=(3,), dtype=np.float32)
 
 
-def make_policy(**kwargs) -> SGFDPolicy:
+def make_policy(**kwargs) -> SharedEncoderPolicy:
     kwargs.setdefault("net_arch", [32, 32])
     return CnnPolicy(IMAGE_SPACE, ACTION_SPACE, ConstantSchedule(1e-3), **kwargs)
 
@@ -53,12 +59,32 @@ def test_encoder_is_shared_and_trained_by_the_critic_only():
 def test_default_features_extractor_follows_the_observation_space():
     state_space = spaces.Box(-np.inf, np.inf, shape=(7,), dtype=np.float32)
     lr = ConstantSchedule(1e-3)
-    assert isinstance(SGFDPolicy(IMAGE_SPACE, ACTION_SPACE, lr, net_arch=[8]).actor.features_extractor, PixelEncoder)
+    assert isinstance(
+        SharedEncoderPolicy(IMAGE_SPACE, ACTION_SPACE, lr, net_arch=[8]).actor.features_extractor, PixelEncoder
+    )
     assert not isinstance(
-        SGFDPolicy(state_space, ACTION_SPACE, lr, net_arch=[8]).actor.features_extractor, PixelEncoder
+        SharedEncoderPolicy(state_space, ACTION_SPACE, lr, net_arch=[8]).actor.features_extractor, PixelEncoder
     )
     assert not isinstance(MlpPolicy(state_space, ACTION_SPACE, lr, net_arch=[8]).actor.features_extractor, PixelEncoder)
-    assert SGFDPolicy(state_space, ACTION_SPACE, lr).net_args["net_arch"] == [1024, 1024]
+    assert SharedEncoderPolicy(state_space, ACTION_SPACE, lr).net_args["net_arch"] == [1024, 1024]
+
+
+def test_the_former_name_sgfd_policy_still_names_the_shared_encoder_policy(tmp_path):
+    # yaml files and code name it "SGFDPolicy", and models saved before the rename name its class by that path
+    assert sb3_sgfd.SGFDPolicy is sb3_sgfd.SharedEncoderPolicy is SharedEncoderPolicy
+    for name in ("SGFDPolicy", "SharedEncoderPolicy"):
+        assert EncoderSAC.policy_aliases[name] is SharedEncoderPolicy
+    model = EncoderSAC("SGFDPolicy", "Pendulum-v1", buffer_size=100, policy_kwargs={"net_arch": [8]}, seed=0)
+    SharedEncoderPolicy.__qualname__ = "SGFDPolicy"  # saved as before the rename: the class named by its former path
+    try:
+        model.save(tmp_path / "model.zip")
+    finally:
+        SharedEncoderPolicy.__qualname__ = "SharedEncoderPolicy"
+    with zipfile.ZipFile(tmp_path / "model.zip") as archive:
+        policy_class = json.loads(archive.read("data"))["policy_class"][":serialized:"]
+    assert b"sb3_sgfd.common.policies" in base64.b64decode(policy_class)
+    assert b"SGFDPolicy" in base64.b64decode(policy_class)
+    assert type(EncoderSAC.load(tmp_path / "model.zip").policy) is SharedEncoderPolicy
 
 
 def test_separate_encoders_are_refused_with_a_clear_message():

@@ -11,7 +11,7 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import DictReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_sgfd.common.buffers.domains import DomainLabelsMixin, domain_labels
+from sb3_sgfd.common.buffers.replay import DomainLabelsMixin, domain_labels
 from sb3_sgfd.common.validation import check_positive_int, check_transitions
 
 
