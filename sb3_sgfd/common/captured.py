@@ -23,7 +23,7 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Callable, Hashable, Iterable, Sequence
 from contextlib import contextmanager
-from typing import Any, ParamSpec, TypeVar
+from typing import Any, NamedTuple, ParamSpec, TypeVar
 
 import torch as th
 from torch import Tensor
@@ -35,6 +35,21 @@ P = ParamSpec("P")
 WARMUP_CALLS = 2
 #: With the update captured, the non-finite flag is read at least every this many updates (one host read each).
 FINITE_CHECK_UPDATES = 1000
+
+
+class StepPlan(NamedTuple):
+    """The host's decisions for one gradient step: a captured step is one CUDA graph per distinct plan.
+
+    :param update_actor: the actor and the entropy coefficient learn
+    :param update_target: the target networks move
+    :param objective: the representation objective's own decisions (``Representation.plan``)
+    :param weighting: a sample weighting's (``_weighting_plan``)
+    """
+
+    update_actor: bool
+    update_target: bool
+    objective: tuple = ()
+    weighting: tuple = ()
 
 
 class DeviceFigures:
@@ -351,6 +366,15 @@ class CapturedUpdateMixin:
         for optimizer in optimizers if isinstance(optimizers, list) else [optimizers]:
             set_learning_rate(optimizer, self.lr_schedule(self._current_progress_remaining))
 
+    def _after_train(self) -> None:
+        """After a ``train`` call: the figures into the logger (eager: now, one host read; captured: once per log
+        interval), and with the update captured the non-finite check at least every ``FINITE_CHECK_UPDATES``."""
+        if not self._update.capture:
+            self._log_figures()
+        elif self._n_updates - self._finite_checked >= FINITE_CHECK_UPDATES:
+            self._finite_checked = self._n_updates
+            self._figures.raise_if_not_finite()
+
     def _log_figures(self) -> None:
         """The figures since the last read, into the logger (one host read)."""
         for key, mean in self._figures.read().items():
@@ -373,6 +397,10 @@ class CapturedUpdateMixin:
         if getattr(self, "_update", None) is not None:
             self._update.reset()
         self._optimizers_prepared = False
+
+    def _excluded_save_params(self) -> list[str]:
+        excluded = super()._excluded_save_params()  # type: ignore[misc]
+        return [*excluded, "_update", "_figures", "_finite_checked", "_optimizers_prepared"]
 
     def save(self, *args: Any, **kwargs: Any) -> None:
         if getattr(self, "_figures", None) is not None:

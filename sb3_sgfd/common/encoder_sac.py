@@ -1,14 +1,14 @@
 """EncoderSAC: SB3's SAC with the machinery every visual-RL agent of the SGFD paper's tables shares.
 
-- the encoder is shared by actor and critic and trained by the critic (``sb3_sgfd.common.policies.SharedEncoderPolicy``), and
-  the critic target's encoder has its own soft-update rate (``encoder_tau``, DBC/AMBS: 0.05);
+- the encoder is shared by actor and critic and trained by the critic (``SharedEncoderPolicy``), and the critic
+  target's encoder has its own soft-update rate (``encoder_tau``, DBC/AMBS: 0.05);
 - random-shift augmentation of the critic's inputs (DrQ): one view (RAD, SGQN, TED), or two with the target
   and the critic loss averaged over them (DrQ, AMBS);
 - the actor and the entropy coefficient learn every ``actor_update_interval`` steps, gradient norms are
   clipped (``max_grad_norm``, AMBS: 40);
 - an optional representation objective (``representation=``: DBC, AMBS, TED or SGQN, see
   :mod:`sb3_sgfd.common.representation`), and per-sample weights of the critic and actor losses (``_batch_weights``,
-  which :class:`sb3_sgfd.SGFD_SAC` overrides).
+  which a sample weighting overrides).
 
 ``EncoderSAC.train`` (with ``_gradient_step``, its loop's body) is a twin of ``SAC.train``: the lines marked ``# +``
 are what it adds. With its defaults (no augmentation, no objective, ``encoder_tau = tau``, actor every step, no
@@ -20,14 +20,14 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping
-from typing import Any, ClassVar, NamedTuple, cast
+from typing import Any, ClassVar, cast
 
 import numpy as np
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.preprocessing import is_image_space, preprocess_obs
+from stable_baselines3.common.preprocessing import preprocess_obs
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.sac import SAC
@@ -36,7 +36,7 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_sgfd.common.augmentation import random_shift
 from sb3_sgfd.common.buffer_setup import N_STEPS_IGNORED_WARNING, DomainBufferMixin
 from sb3_sgfd.common.buffers import DomainReplayBuffer
-from sb3_sgfd.common.captured import FINITE_CHECK_UPDATES, CapturedUpdateMixin
+from sb3_sgfd.common.captured import CapturedUpdateMixin, StepPlan
 from sb3_sgfd.common.policies import (
     CnnPolicy,
     EncoderMlpPolicy,
@@ -44,25 +44,12 @@ from sb3_sgfd.common.policies import (
     MultiInputPolicy,
     SGFDPolicy,
     SharedEncoderPolicy,
+    check_encoder_setup,
+    critic_and_features,
 )
 from sb3_sgfd.common.representation import REPRESENTATIONS, Batch, Representation, make_representation
 from sb3_sgfd.common.utils import polyak_pairs, weighted_mean
 from sb3_sgfd.common.validation import check_encoder_sac_arguments, check_sac_arguments
-
-
-class StepPlan(NamedTuple):
-    """The host's decisions for one gradient step: a captured step is one CUDA graph per distinct plan.
-
-    :param update_actor: the actor and the entropy coefficient learn
-    :param update_target: the target networks move
-    :param objective: the representation objective's own decisions (``Representation.plan``)
-    :param weighting: the sample weighting's (SGFD_SAC's ``_weighting_plan``)
-    """
-
-    update_actor: bool
-    update_target: bool
-    objective: tuple = ()
-    weighting: tuple = ()
 
 
 class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
@@ -226,24 +213,7 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
         if self.ent_coef_optimizer is not None and (self.ent_coef_lr is not None or self.ent_coef_beta != 0.9):
             lr = self.lr_schedule(1) if self.ent_coef_lr is None else self.ent_coef_lr
             self.ent_coef_optimizer = th.optim.Adam([self.log_ent_coef], lr=lr, betas=(self.ent_coef_beta, 0.999))  # type: ignore[arg-type]  # not None with the optimizer
-        scaled = not self.policy.normalize_images
-        if self.augmentation_views and not is_image_space(self.observation_space, normalized_image=scaled):
-            raise ValueError(
-                f"augmentation_views={self.augmentation_views} shifts images, but the observations are "
-                f"{self.observation_space}; use augmentation_views=0 on states"
-            )
-        if (representation_model is not None or self.augmentation_views) and not isinstance(self.policy, SharedEncoderPolicy):
-            raise ValueError(
-                f"{type(self).__name__} with a representation or augmentation needs a policy whose encoder the "
-                "critic trains (sb3_sgfd.common.policies.SharedEncoderPolicy and its subclasses), got "
-                f"{type(self.policy).__name__}"
-            )
-        encoder = self.critic.features_extractor
-        if representation_model is not None and not any(True for _ in encoder.parameters()):
-            raise ValueError(
-                f"the {self.representation!r} representation trains the encoder, but {type(encoder).__name__} has "
-                "no parameters: use policy='EncoderMlpPolicy' (states) or 'CnnPolicy' (pixels)"
-            )
+        check_encoder_setup(self, representation_model is not None)
         # Augmentation and the objectives draw from generators of their own, seeded from the model's seed:
         # SAC's random streams stay those of SB3's SAC.
         seeds = self._derived_seeds()
@@ -300,12 +270,7 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
         self._n_updates += gradient_steps
 
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        # + the figures, summed on the device: read here (one read), or once per log interval when captured
-        if not self._update.capture:
-            self._log_figures()
-        elif self._n_updates - self._finite_checked >= FINITE_CHECK_UPDATES:
-            self._finite_checked = self._n_updates
-            self._figures.raise_if_not_finite()
+        self._after_train()  # + the figures read (once per log interval when captured) and the finiteness check
 
     def _gradient_step(
         self, replay_data: Any, observations: list[th.Tensor], next_observations: list[th.Tensor], plan: StepPlan
@@ -318,7 +283,7 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
         # Get current Q-values estimates for each critic network
         # using action from the replay buffer (+ per view, each with the encoder features it came from; + first,
         # so that the actor reads the critic's features of the batch instead of encoding it again)
-        critic_outputs = [self._critic_and_features(obs, replay_data.actions) for obs in observations]
+        critic_outputs = [critic_and_features(self.critic, obs, replay_data.actions) for obs in observations]
         current_q_values = [q_values for q_values, _ in critic_outputs]
         z = critic_outputs[0][1].detach()  # +
 
@@ -429,10 +394,8 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
         return self.augment(replay_data.observations), self.augment(replay_data.next_observations)
 
     def augment(self, observations: th.Tensor) -> list[th.Tensor]:
-        """``augmentation_views`` random shifts of a batch of images, or the batch itself without augmentation.
-
-        :param observations: (n, C, H, W) images as the replay buffer returns them
-        """
+        """``augmentation_views`` random shifts of a batch of (n, C, H, W) images as the replay buffer returns them,
+        or the batch itself without augmentation."""
         if not self.augmentation_views:
             return [observations]
         return [
@@ -440,46 +403,21 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
             for _ in range(self.augmentation_views)
         ]
 
-    def _critic_and_features(
-        self, observations: th.Tensor, actions: th.Tensor
-    ) -> tuple[tuple[th.Tensor, ...], th.Tensor]:
-        """``self.critic(observations, actions)``, as SB3's ContinuousCritic computes it (its encoder learning
-        through it), and the encoder features it computed: the weights reuse them instead of encoding the
-        batch a second time (on pixels, the encoder is a large part of a step).
-        """
-        with th.set_grad_enabled(not self.critic.share_features_extractor):
-            features = self.critic.extract_features(observations, self.critic.features_extractor)
-        q_input = th.cat([features, actions], dim=1)
-        return tuple(q_net(q_input) for q_net in self.critic.q_networks), features
-
     def _batch_weights(
         self, replay_data: Any, z: th.Tensor, plan: StepPlan
     ) -> tuple[th.Tensor | None, th.Tensor | None]:
-        """Per-sample weights (n, 1) of the critic and actor losses; None: unweighted (SAC). SGFD_SAC overrides it.
-
-        :param replay_data: the replay samples
-        :param z: the critic's encoder features of the first observation view (what the critic and actor train
-            on), detached
-        :param plan: the host's decisions for this step
-        """
+        """Per-sample weights (n, 1) of the critic and actor losses from the critic's (detached) features ``z`` of
+        the first view; None: unweighted (SAC). A sample weighting overrides it."""
         return None, None
 
     def _before_gradient_step(self, replay_data: Any, observations: list[th.Tensor], plan: StepPlan) -> None:
-        """What a weighting does before the step where it needs the host (a decision, fresh batches); SGFD_SAC's
-        code reading overrides it. Nothing here.
-
-        :param replay_data: the replay samples
-        :param observations: the critic's views of the observations
-        :param plan: the host's decisions for this step
-        """
+        """What a sample weighting does before the step where it needs the host (a decision, fresh batches), given
+        the batch and its views. Nothing here."""
 
     def _plan(self, update_index: int, gradient_step: int) -> StepPlan:
-        """What the host decides for the step: each part whose Python code branches on the update says so here, so
-        that one captured graph per plan replays exactly what the eager step would run.
-
-        :param update_index: index of this gradient step over the run
-        :param gradient_step: index of this gradient step in this ``train`` call (SAC's target updates count it)
-        """
+        """What the host decides for the step (its index over the run, and in this ``train`` call, which SAC's target
+        updates count): each part whose Python code branches on the update says so here, so that one captured graph
+        per plan replays exactly what the eager step would run."""
         objective = () if self.representation_model is None else self.representation_model.plan(update_index)
         return StepPlan(
             update_actor=update_index % self.actor_update_interval == 0,
@@ -489,14 +427,14 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
         )
 
     def _weighting_plan(self, update_index: int, update_actor: bool) -> tuple:
-        """The weighting's share of the plan (SGFD_SAC overrides it)."""
+        """A sample weighting's share of the plan (none here)."""
         return ()
 
     def _actor_action_log_prob(self, observations: th.Tensor, z: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """The actor's actions and their log-probabilities for the batch, from the critic's features z of it when
         the actor reads the critic's encoder (the same values SB3's actor computes, without a second pass)."""
         if self._actor_reads_critic_features:
-            return cast(SharedEncoderPolicy, self.policy).actor.action_log_prob_of_features(z)  # self.actor is its actor
+            return cast(SharedEncoderPolicy, self.policy).actor.action_log_prob_of_features(z)
         return self.actor.action_log_prob(observations)
 
     def _actor_q_values(self, observations: th.Tensor, z: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
@@ -511,7 +449,7 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
 
     @property
     def _actor_reads_critic_features(self) -> bool:
-        # SharedEncoderPolicy: one encoder, the critic's, which the actor reads detached (SB3's own SAC policies: not so).
+        # one encoder, the critic's, which the actor reads detached (SB3's own SAC policies: not so)
         return isinstance(self.policy, SharedEncoderPolicy)
 
     def _clip_grad_norm(self, optimizer: th.optim.Optimizer) -> None:
@@ -531,14 +469,14 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
 
     def generators(self) -> dict[str, th.Generator]:
         """The generators this algorithm draws from beside the global ones, by name: what a checkpoint saves so
-        that a resumed run continues their streams (``sgfd_zoo.training_state``)."""
+        that a resumed run continues their streams."""
         generators = {"augmentation": self._augment_generator}
         if self.representation_model is not None:
             generators["representation"] = self.representation_model.generator
         return generators
 
     def _update_optimizers(self) -> list[th.optim.Optimizer]:
-        """Every optimiser a gradient step steps (SGFD_SAC adds its classifier's)."""
+        """Every optimiser a gradient step steps (a sample weighting adds its own)."""
         optimizers = [self.actor.optimizer, self.critic.optimizer]
         if self.ent_coef_optimizer is not None:
             optimizers.append(self.ent_coef_optimizer)
@@ -550,7 +488,6 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
 
     def _excluded_save_params(self) -> list[str]:
         excluded = ["representation_model", "_augment_generator", "_encoder_pairs", "_head_pairs"]
-        excluded += ["_update", "_figures", "_finite_checked", "_optimizers_prepared"]
         return [*super()._excluded_save_params(), *excluded]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
