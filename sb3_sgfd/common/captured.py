@@ -79,7 +79,8 @@ class DeviceFigures:
         if key not in self._sums:
             self._sums[key] = th.zeros((), dtype=th.float64, device=self.device)
             self._counts[key] = th.zeros((), dtype=th.float64, device=self.device)
-        value = value.detach() if isinstance(value, Tensor) else th.tensor(value, device=self.device)
+        # a number becomes a tensor by a fill on the device (a copy from the host would not replay)
+        value = value.detach() if isinstance(value, Tensor) else th.full((), float(value), device=self.device)
         value = value.to(th.float64).reshape(())
         if when is None:
             self._sums[key].add_(value)

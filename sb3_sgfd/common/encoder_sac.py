@@ -262,7 +262,9 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
             # + the host's decisions for this step (which parts learn): one captured graph per plan
             plan = self._plan(self._n_updates + gradient_step, gradient_step)
             # + views of the observations for the critic (the first also the actor's), of the next ones for its target
-            observations, next_observations = self._update.run("views", self._views, replay_data)
+            # (without augmentation, the batch itself: nothing to capture)
+            views = self._update.run if self.augmentation_views else lambda _, piece, *args: piece(*args)
+            observations, next_observations = views("views", self._views, replay_data)
             # + what the weighting needs the host for before the step (SGFD's code reading: its classifier's round)
             self._before_gradient_step(replay_data, observations, plan)
             self._update.run(plan, self._gradient_step, replay_data, observations, next_observations, plan)  # +
@@ -438,10 +440,8 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
         return self.actor.action_log_prob(observations)
 
     def _actor_q_values(self, observations: th.Tensor, z: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
-        """The critic's Q of the actor's actions. With ``actor_reuses_features``, on the critic's (detached)
-        features of this step: the authors' codes evaluate it with the encoder detached, and the features are
-        already computed; else SB3's, the batch encoded again by the critic's updated encoder, whose gradient the
-        actor's optimiser then throws away."""
+        """The critic's Q of the actor's actions: with ``actor_reuses_features`` on the critic's (detached) features of
+        this step, as the authors' codes (the encoder detached); else SB3's, the batch encoded again."""
         if self.actor_reuses_features and self._actor_reads_critic_features:
             q_input = th.cat([z, actions], dim=1)
             return tuple(q_net(q_input) for q_net in self.critic.q_networks)

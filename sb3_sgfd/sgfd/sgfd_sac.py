@@ -103,6 +103,7 @@ class SGFD_SAC(EncoderSAC):
         representation: str | None = None,
         representation_kwargs: dict[str, Any] | None = None,
         actor_reuses_features: bool = True,
+        compile_update: bool | None = None,
         reading: str | None = None,
         n_domains: int | None = None,
         sgfd: SGFDSettings | None = None,
@@ -192,6 +193,7 @@ class SGFD_SAC(EncoderSAC):
             representation=representation,
             representation_kwargs=representation_kwargs,
             actor_reuses_features=actor_reuses_features,
+            compile_update=compile_update,
             _init_setup_model=_init_setup_model,
         )
 

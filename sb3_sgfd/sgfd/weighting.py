@@ -311,12 +311,12 @@ class PaperWeighting(SampleWeighting):
         # Line 12's p(Z_i) and the batch's accuracy from one pass of the classifier as it was before this step
         predicted, gradient = self.classifier.predictions_and_input_gradient(z)
         figures = {"classifier_accuracy": accuracy(predicted, domains)}
-        was_ready = self.ready
+        was_ready = self.ready.clone()
         if plan.classifier_round:  # lines 6-13: train while below the threshold; the first time at it, ready
             reached = classifier_round(
                 self.classifier, self.classifier_optimizer, [(z, domains), *fresh], self.settings.accuracy_threshold
             )[1]
-            self.ready = self.ready | reached
+            self.ready.copy_(self.ready | reached)  # in place: a captured graph reads and writes it there
         if not plan.weights_wanted:
             return Weights(None, figures)
         probs = None
