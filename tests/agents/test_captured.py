@@ -84,7 +84,7 @@ def test_each_plan_is_one_sequence_of_operators(name):
     model._prepare_update()
     runner_run, model._update.run = model._update.run, recorded
     model.train(gradient_steps=16, batch_size=model.batch_size)
-    assert len(sequences) >= 3  # the views, and at least two plans (the actor learns every other step)
+    assert len(sequences) >= 2  # at least two plans: the actor learns every other step
     for key, seen in sequences.items():
         assert len(seen) == 1, f"plan {key} ran {len(seen)} different sequences of operators"
 
