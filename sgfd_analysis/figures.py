@@ -36,7 +36,7 @@ from sgfd_zoo.algos import column_name
 from sgfd_zoo.arguments import ZooError, check_env_id
 from sgfd_zoo.experiment import wrap_like_training
 from sgfd_zoo.plot import mean_and_band
-from sgfd_zoo.runs import RunFolder, env_name, find_runs, select_run
+from sgfd_zoo.runs.folders import RunFolder, env_name, find_runs, select_run
 
 # Inches per image panel; the figures are grids of these.
 PANEL = 1.3

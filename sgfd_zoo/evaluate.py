@@ -21,7 +21,7 @@ import sgfd_envs
 from sgfd_envs.registry import BENCHMARK_KINDS, benchmark_of
 from sgfd_zoo.algos import algo_sort_key, column_name
 from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id, train_command
-from sgfd_zoo.runs import RunFolder, find_runs
+from sgfd_zoo.runs.folders import RunFolder, find_runs
 from sgfd_zoo.statistics import (
     MAX_RETURN,
     STAND_IN_MARK,

@@ -62,7 +62,7 @@ def scaled_classifier_start(algos: Sequence[str], env_id: str, n_timesteps: int)
 def check_run_lengths(folder: Path, algos: Sequence[str], env_id: str, n_timesteps: int) -> None:
     """A ZooError when ``folder`` holds runs of these algorithms on ``env_id`` of another length: the job keeps
     the runs it finds finished, and its tables would mix lengths."""
-    from sgfd_zoo.runs import find_runs
+    from sgfd_zoo.runs.folders import find_runs
 
     other = []
     for run in find_runs(folder, algos, [env_id], finished=False):

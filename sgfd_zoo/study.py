@@ -4,7 +4,7 @@
 It runs the spec's sweep (algorithms x envs x seeds with its training flags; resumable: run the same command
 again to continue), evaluates every run on every split, and writes the compact results next to the spec: a
 record of each finished run (``runs/``: its evaluations during training, logged SGFD figures and final
-evaluation; :class:`sgfd_zoo.records.RunRecord`), and, computed from all the records, the paper-style tables
+evaluation; :class:`sgfd_zoo.runs.records.RunRecord`), and, computed from all the records, the paper-style tables
 (``results.*``), the aggregate statistics (``scores.csv``, ``aggregate.*``), their figures and the diagnostics
 of SGFD's weights over training (``plots/``, ``diagnostics.md``), with the exact command and the package
 versions. Models, replay buffers and checkpoints stay in the log folder. A recorded cell is not trained again:
@@ -37,11 +37,12 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sgfd_zoo import evaluate, provenance, sweep
+from sgfd_zoo import evaluate, sweep
 from sgfd_zoo.algos import SGFD_ALGOS, algo_sort_key, column_name
 from sgfd_zoo.arguments import ZooError, check_at_least, checked_names
-from sgfd_zoo.records import RunRecord, find_records
-from sgfd_zoo.runs import RunFolder, env_name, find_runs
+from sgfd_zoo.runs import provenance
+from sgfd_zoo.runs.folders import RunFolder, env_name, find_runs
+from sgfd_zoo.runs.records import RunRecord, find_records
 from sgfd_zoo.statistics import write_statistics
 
 SPEC_KEYS = {"name", "description", "algos", "envs", "seeds", "train", "n_episodes", "reference"}

@@ -13,7 +13,7 @@ from sgfd_envs.registry import task_entry
 from sgfd_zoo.algos import hyperparams_file
 from sgfd_zoo.arguments import check_env_id
 from sgfd_zoo.experiment import SGFDExperimentManager, register_algorithms
-from sgfd_zoo.runs import RunFolder
+from sgfd_zoo.runs.folders import RunFolder
 
 BENCHMARK_IDS = [env_id for ids in sgfd_envs.BENCHMARK_IDS.values() for env_id in ids]
 AGENTS = ("ambs", "dbc", "sac", "sgfd_sac", "sgfd_sac_moderate", "sgfd_sac_official", "sgfd_sac_plain", "sgqn", "ted")
