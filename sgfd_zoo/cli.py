@@ -26,7 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "plot": ("sgfd_zoo.plot:main", "learning curves per split and algorithm from a log folder"),
     "quick": ("sgfd_zoo.quick:main", "the main job: SGFD and SAC briefly, on several seeds; tables with intervals"),
     "sweep": (
-        "sgfd_zoo.sweep:main",
+        "sgfd_zoo.sweep.command:main",
         "algos x envs x seeds as Ray tasks (here or on a cluster), resumable; then evaluate",
     ),
     "study": ("sgfd_zoo.study:main", "a study from a spec file: its sweep, statistics and figures into studies/<name>"),

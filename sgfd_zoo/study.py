@@ -37,13 +37,14 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sgfd_zoo import evaluate, sweep
+from sgfd_zoo import evaluate
 from sgfd_zoo.algos import SGFD_ALGOS, algo_sort_key, column_name
 from sgfd_zoo.arguments import ZooError, check_at_least, checked_names
 from sgfd_zoo.runs import provenance
 from sgfd_zoo.runs.folders import RunFolder, env_name, find_runs
 from sgfd_zoo.runs.records import RunRecord, find_records
 from sgfd_zoo.statistics import write_statistics
+from sgfd_zoo.sweep import command as sweep
 
 SPEC_KEYS = {"name", "description", "algos", "envs", "seeds", "train", "n_episodes", "reference"}
 TOP_SALIENCY = "sgfd/top_saliency_feature"  # the index of the most salient feature, per logged step

@@ -39,9 +39,9 @@ import numpy as np
 import yaml
 
 import sgfd_envs
-from sgfd_zoo.runs import provenance
 from sgfd_zoo.algos import SGFD_ALGOS
 from sgfd_zoo.arguments import ZooError, check_env_id
+from sgfd_zoo.runs import provenance
 from sgfd_zoo.runs.checkpoints import Checkpoint, read_index, scan_checkpoints
 from sgfd_zoo.runs.files import StoredFile, UnreadableFile, atomic_write, read_json, write_json
 

@@ -12,8 +12,9 @@ from typing import Any
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
-from sgfd_zoo.runs import training_state
 from sgfd_zoo.arguments import ZooError
+from sgfd_zoo.config_checks import first_line
+from sgfd_zoo.runs import training_state
 from sgfd_zoo.runs.checkpoint_callback import CHECKPOINT_PARTS
 from sgfd_zoo.runs.checkpoints import (
     CHECKPOINT_INDEX,
@@ -24,7 +25,6 @@ from sgfd_zoo.runs.checkpoints import (
     remove_checkpoint_files,
     write_index,
 )
-from sgfd_zoo.config_checks import first_line
 from sgfd_zoo.runs.files import UnreadableFile
 from sgfd_zoo.runs.folders import NoUsableCheckpoint, RunFolder, runs_by_id
 

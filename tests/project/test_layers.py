@@ -76,7 +76,7 @@ REPORTING = [
     "sgfd_zoo.runs.files",
     "sgfd_zoo.runs.checkpoints",
     "sgfd_zoo.runs.locks",
-    "sgfd_zoo.sweep_plan",
+    "sgfd_zoo.sweep.plan",
 ]
 
 

@@ -165,9 +165,9 @@ def write_record(study: Path, algo: str, seed: int, splits: tuple[str, ...]) -> 
 
 
 def test_a_record_without_its_whole_final_evaluation_is_trained_again_and_a_whole_one_is_not(tmp_path):
-    from sgfd_zoo import sweep
     from sgfd_zoo.runs.records import RunRecord
     from sgfd_zoo.study import read_spec, study_records
+    from sgfd_zoo.sweep import command as sweep
 
     spec = read_spec(write_spec(tmp_path / "study", seeds=[0, 1, 2]))
     whole = write_record(tmp_path / "study", "sgfd_sac", 0, ("train", "interpolation", "extrapolation"))

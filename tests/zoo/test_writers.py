@@ -31,7 +31,7 @@ from sgfd_zoo.runs.checkpoints import read_index
 from sgfd_zoo.runs.files import TMP_PREFIX, temporary_path
 from sgfd_zoo.runs.folders import STEPS_KEY, RunFolder, find_runs
 from sgfd_zoo.runs.locks import LOCK_FILE, RunLock, RunLocked, live_holder, read_holder
-from sgfd_zoo.sweep_plan import Job, locked_runs
+from sgfd_zoo.sweep.plan import Job, locked_runs
 from tests.zoo.zoo_runs import ENV_ID, NAME, SETTINGS, Training, has_checkpoint, train_args, zoo
 
 # -- runs started together ---------------------------------------------------------------------------------
