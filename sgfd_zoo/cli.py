@@ -20,10 +20,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "enjoy": ("sgfd_zoo.training:enjoy", "watch or roll out a trained agent (rl-zoo3's flags)"),
     "evaluate": (
-        "sgfd_zoo.evaluate:main",
+        "sgfd_zoo.report.evaluate:main",
         "every trained model of a log folder on every split: tables, statistics",
     ),
-    "plot": ("sgfd_zoo.plot:main", "learning curves per split and algorithm from a log folder"),
+    "plot": ("sgfd_zoo.report.plot:main", "learning curves per split and algorithm from a log folder"),
     "quick": ("sgfd_zoo.quick:main", "the main job: SGFD and SAC briefly, on several seeds; tables with intervals"),
     "sweep": (
         "sgfd_zoo.sweep.command:main",

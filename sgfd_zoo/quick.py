@@ -141,7 +141,8 @@ def main(argv: list[str]) -> int:
     if classifier_start is not None:
         train_args += ["--classifier-start", str(classifier_start)]
         print(f"quick: {n_timesteps} steps per run; SGFD's classifier starts at step {classifier_start}")
-    from sgfd_zoo import plot  # here: --help and a bad flag answer without loading the sweep
+    # here: --help and a bad flag answer without loading the sweep
+    from sgfd_zoo.report import plot
     from sgfd_zoo.sweep import command as sweep
 
     status = sweep.main([*sweep_args, *train_args])

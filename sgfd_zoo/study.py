@@ -37,13 +37,13 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sgfd_zoo import evaluate
 from sgfd_zoo.algos import SGFD_ALGOS, algo_sort_key, column_name
 from sgfd_zoo.arguments import ZooError, check_at_least, checked_names
+from sgfd_zoo.report import evaluate
+from sgfd_zoo.report.statistics import write_statistics
 from sgfd_zoo.runs import provenance
 from sgfd_zoo.runs.folders import RunFolder, env_name, find_runs
 from sgfd_zoo.runs.records import RunRecord, find_records
-from sgfd_zoo.statistics import write_statistics
 from sgfd_zoo.sweep import command as sweep
 
 SPEC_KEYS = {"name", "description", "algos", "envs", "seeds", "train", "n_episodes", "reference"}
@@ -172,7 +172,7 @@ def diagnostics_figures(runs: Sequence[RunFolder | RunRecord], out: Path) -> lis
     (mean over seeds, and each seed faintly)."""
     from matplotlib.figure import Figure
 
-    from sgfd_zoo.plot import mean_and_band
+    from sgfd_zoo.report.plot import mean_and_band
 
     panels: tuple[tuple[str, str], ...] = (("sgfd/classifier_accuracy", "classifier accuracy"),)
     panels += (("sgfd/weight_ess", "weights' ESS / n"),)

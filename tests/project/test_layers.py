@@ -47,7 +47,7 @@ def test_no_import_cycle_between_modules():
     graph = module_imports()
     # a package's __init__ importing its own submodules is the package, not a cycle
     edges = {name: {dep for dep in deps if not name.startswith(f"{dep}.")} for name, deps in graph.items()}
-    assert len(graph) > 40 and "sgfd_zoo.runs.folders" in edges["sgfd_zoo.evaluate"]
+    assert len(graph) > 40 and "sgfd_zoo.runs.folders" in edges["sgfd_zoo.report.evaluate"]
     cycles = []
 
     def visit(name: str, path: list[str]) -> None:
@@ -68,10 +68,10 @@ def test_no_import_cycle_between_modules():
 #: the statistics, the argument checks, the files, checkpoints and locks, the plan
 REPORTING = [
     "sgfd_zoo.cli",
-    "sgfd_zoo.plot",
+    "sgfd_zoo.report.plot",
     "sgfd_zoo.runs.folders",
     "sgfd_zoo.runs.records",
-    "sgfd_zoo.statistics",
+    "sgfd_zoo.report.statistics",
     "sgfd_zoo.arguments",
     "sgfd_zoo.runs.files",
     "sgfd_zoo.runs.checkpoints",

@@ -99,7 +99,7 @@ def test_a_benchmark_run_trains_and_evaluates_in_the_benchmarks_layout(tmp_path)
 
 
 def test_tables_mark_the_splits_played_on_a_stand_in():
-    from sgfd_zoo.evaluate import render_benchmark_tables, render_tables
+    from sgfd_zoo.report.evaluate import render_benchmark_tables, render_tables
 
     # as evaluate writes them (bools) and as they read back from csv (strings)
     marks = (("train", False), ("video_hard", True), ("color_hard", "False"), ("distracting_cs_0.1", "True"))

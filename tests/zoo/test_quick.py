@@ -19,7 +19,7 @@ from sgfd_zoo import algos, quick
 from sgfd_zoo.algos import classifier_start_warning
 from sgfd_zoo.arguments import ZooError
 from sgfd_zoo.cli import main as zoo_main
-from sgfd_zoo.plot import draw_env, load_curves
+from sgfd_zoo.report.plot import draw_env, load_curves
 from sgfd_zoo.runs.folders import FINISHED_MARKER, RunFolder
 
 REPO = Path(__file__).resolve().parents[2]

@@ -18,8 +18,8 @@ from sgfd_zoo import training
 from sgfd_zoo.algos import SGFD_ALGOS, hyperparams_file
 from sgfd_zoo.arguments import ZooError
 from sgfd_zoo.cli import main as zoo_main
-from sgfd_zoo.evaluate import read_results, render_tables
 from sgfd_zoo.experiment import SGFDExperimentManager, register_algorithms
+from sgfd_zoo.report.evaluate import read_results, render_tables
 from sgfd_zoo.runs import provenance
 from sgfd_zoo.runs.checkpoints import read_index
 from sgfd_zoo.runs.folders import RunFolder
