@@ -1,4 +1,4 @@
-"""A run's files: its folder and its study record (``folders``, ``records``), its checkpoints and the callback that
-takes them (``checkpoints``, ``checkpoint_callback``), what a resume needs and where it starts (``training_state``,
-``resuming``), what trained it (``provenance``), and the file and lock primitives under all of them (``files``,
-``locks``). Nothing here imports the experiment: reporting and the sweep's planning read runs without torch."""
+"""A run's files. Read without torch (reporting and the sweep's planning use them): ``folders`` (the run folders),
+``records`` (a study's records), ``checkpoints`` (their index), ``provenance`` (what trained a run), ``files`` and
+``locks`` (files written whole, one writer per run). Used while training: ``checkpoint_callback`` (checkpoints a
+crash cannot spoil), ``training_state`` (what an exact resume needs) and ``resuming`` (where a run starts from)."""
