@@ -476,7 +476,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
 
     def generators(self) -> dict[str, th.Generator]:
         """The generators this algorithm draws from beside the global ones, by name: what a checkpoint saves so
-        that a resumed run continues their streams (``sgfd_zoo.training_state``)."""
+        that a resumed run continues their streams (``sgfd_zoo.runs.training_state``)."""
         generators = {"augmentation": self._augment_generator}
         if self.representation_model is not None:
             generators["representation"] = self.representation_model.generator
