@@ -38,9 +38,10 @@ import cv2
 import mujoco
 import numpy as np
 from dm_control.mujoco import Physics
+from dm_control.utils import transformations
 
 from sgfd_envs.benchmarks.media import ClipBank, davis_clips
-from sgfd_envs.benchmarks.scene import TextureSlot, object_id, rotation_x, rotation_z, video_texture
+from sgfd_envs.benchmarks.scene import TextureSlot, video_texture
 from sgfd_envs.rendering import CameraRenderer
 
 NAME = "DCS"
@@ -127,10 +128,10 @@ def to_cartesian(spherical: np.ndarray) -> np.ndarray:
 def look_at_without_roll(target: np.ndarray, position: np.ndarray) -> np.ndarray:
     """Camera orientation at ``position`` looking at ``target`` with a level horizon (yaw, then pitch)."""
     direction = (target - position) / np.linalg.norm(target - position)
-    yaw = np.degrees(np.arctan2(direction[0], direction[1]))
+    yaw = np.arctan2(direction[0], direction[1])
     # A camera with identity orientation looks down (-z); pitching it by 90 degrees makes it look level.
-    pitch = np.degrees(np.arctan2(direction[2], np.linalg.norm(direction[:2]))) + 90.0
-    return rotation_z(-yaw) @ rotation_x(pitch)
+    pitch = np.arctan2(direction[2], np.linalg.norm(direction[:2])) + np.pi / 2
+    return transformations.rotation_z_axis(-yaw) @ transformations.rotation_x_axis(pitch)
 
 
 def look_at_shortest_arc(target: np.ndarray, position: np.ndarray) -> np.ndarray:
@@ -245,7 +246,7 @@ class CameraWalk:
         else:
             target = self._initial_target
         look_at = look_at_without_roll if self.upper_quadrant else look_at_shortest_arc
-        return position, look_at(target, position) @ rotation_z(np.degrees(self.roll))
+        return position, look_at(target, position) @ transformations.rotation_z_axis(self.roll)
 
     def overrides(self) -> list:
         """Renderer overrides that put the camera at :meth:`pose` for one render."""
@@ -314,7 +315,7 @@ class SkyVideo:
         self.ground_alpha = ground_alpha
         self._side = texture_side
         self._sky = TextureSlot(physics, "skybox")
-        self._grid = object_id(physics, mujoco.mjtObj.mjOBJ_MATERIAL, "grid")
+        self._grid = physics.model.name2id("grid", "material")
         self.video_index = 0
         self.frames: list[int] = [0]
         self.position = 0

@@ -31,13 +31,12 @@ from pathlib import Path
 from typing import Any
 
 import cv2
-import mujoco
 import numpy as np
 from dm_control.mujoco import Physics
 
 from sgfd_envs.benchmarks.dcs import DISTRACTIONS, DCSDistraction
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
-from sgfd_envs.benchmarks.scene import TextureSlot, object_id, rgb_attribute, suite_texture_data
+from sgfd_envs.benchmarks.scene import TextureSlot, rgb_attribute, suite_texture_data
 from sgfd_envs.rendering import CameraRenderer
 
 NAME = "DMCGB"
@@ -160,7 +159,7 @@ class SceneColours:
     def __init__(self, physics: Physics, colours: list[dict[str, np.ndarray]]) -> None:
         self._physics = physics
         self.colours = colours
-        self._self_material = object_id(physics, mujoco.mjtObj.mjOBJ_MATERIAL, "self")
+        self._self_material = physics.model.name2id("self", "material")
         self._grid = TextureSlot(physics, "grid")
         self._sky = TextureSlot(physics, "skybox")
         self.current: dict[str, np.ndarray] | None = None

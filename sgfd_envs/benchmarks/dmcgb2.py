@@ -36,19 +36,12 @@ import mujoco
 import numpy as np
 from dm_control.mujoco import Physics
 from dm_control.rl import control
+from dm_control.utils import transformations
 
 from sgfd_envs import domains
 from sgfd_envs.benchmarks.dmcgb import SceneColours
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
-from sgfd_envs.benchmarks.scene import (
-    TextureSlot,
-    camera_frame_override,
-    object_id,
-    rotation_x,
-    rotation_y,
-    rotation_z,
-    video_texture,
-)
+from sgfd_envs.benchmarks.scene import TextureSlot, camera_frame_override, video_texture
 from sgfd_envs.morphology import find_child
 from sgfd_envs.rendering import CameraRenderer
 
@@ -186,10 +179,15 @@ class DMCGB2Distraction:
         self.mode = mode
         self._physics = physics
         self._domain = domain
-        self._rotations = [rotation_z(a) for a in rotation_angles(difficulty)] if "rotate" in parts else None
-        self._shifts = (
-            [rotation_y(a) @ rotation_x(b) for a, b in shift_angles(domain, difficulty)] if "shift" in parts else None
-        )
+        self._rotations = None
+        if "rotate" in parts:
+            self._rotations = [transformations.rotation_z_axis(np.radians(a)) for a in rotation_angles(difficulty)]
+        self._shifts = None
+        if "shift" in parts:
+            self._shifts = [
+                transformations.rotation_y_axis(np.radians(a)) @ transformations.rotation_x_axis(np.radians(b))
+                for a, b in shift_angles(domain, difficulty)
+            ]
         self._scene_colours = SceneColours(physics, colour_set(difficulty, data_dir)) if "color" in parts else None
         self._clips: ClipBank | None = None
         if "video" in parts:
@@ -197,9 +195,9 @@ class DMCGB2Distraction:
             self._clips = dmcgb_clips(f"video_{difficulty}", side, data_dir, interpolation=resize)
             self._screen = TextureSlot(physics, _PROJECTOR)
             self._screen_side = side
-            self._screen_site = object_id(physics, mujoco.mjtObj.mjOBJ_SITE, _PROJECTOR)
+            self._screen_site = physics.model.name2id(_PROJECTOR, "site")
             if mode == "video_hard":
-                physics.model.mat_rgba[object_id(physics, mujoco.mjtObj.mjOBJ_MATERIAL, "grid"), 3] = 0.0
+                physics.model.mat_rgba[physics.model.name2id("grid", "material"), 3] = 0.0
         self._order = np.arange(POSES)
         self._start = 0
         self._episodes_since_seed = 0
@@ -264,7 +262,7 @@ class DMCGB2Distraction:
         position = data.site_xpos[self._screen_site].copy()
         follow = PROJECTOR_FOLLOWS.get(self._domain)
         if follow is not None:
-            torso = data.subtree_com[object_id(self._physics, mujoco.mjtObj.mjOBJ_BODY, "torso")]
+            torso = data.subtree_com[self._physics.model.name2id("torso", "body")]
             position[0] = torso[0] + follow[0]
             position[2] = torso[2] + follow[1]
         return position

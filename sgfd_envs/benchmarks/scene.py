@@ -1,5 +1,5 @@
-"""What the benchmarks change in a dm_control scene, without touching its physics: named ids, material colours,
-textures rebuilt or replaced and sent to the GPU, rotations of a camera's frame.
+"""What the benchmarks change in a dm_control scene, without touching its physics: material colours, textures
+rebuilt or replaced and sent to the GPU, rotations of a camera's frame.
 
 Every edit here writes visual fields of the model (``mat_rgba``, ``tex_data``, ``tex_width``/``tex_height``) or a
 pose the renderer uses for one render; none of them enters MuJoCo's dynamics.
@@ -21,19 +21,6 @@ from sgfd_envs.rendering import CameraRenderer, check_render
 
 # dm_control's shared assets: the skybox texture is in skybox.xml, the floor's grid texture in materials.xml.
 _ASSET_OF_TEXTURE = {"skybox": "./common/skybox.xml", "grid": "./common/materials.xml"}
-
-
-def object_id(physics: Physics, kind: mujoco.mjtObj, name: str) -> int:
-    """The index of a named model object, or a ValueError naming it.
-
-    :param physics: the physics whose model holds it
-    :param kind: e.g. ``mujoco.mjtObj.mjOBJ_TEXTURE``
-    :param name: its name in the XML
-    """
-    index = mujoco.mj_name2id(physics.model.ptr, kind, name)
-    if index < 0:
-        raise ValueError(f"this model has no {kind.name.removeprefix('mjOBJ_').lower()} named {name!r}")
-    return index
 
 
 def suite_texture_attributes(name: str) -> dict[str, str]:
@@ -106,7 +93,7 @@ class TextureSlot:
 
     def __init__(self, physics: Physics, name: str) -> None:
         self._model = physics.model
-        self.texture_id = object_id(physics, mujoco.mjtObj.mjOBJ_TEXTURE, name)
+        self.texture_id = physics.model.name2id(name, "texture")
         self._address = int(self._model.tex_adr[self.texture_id])
         height, width = int(self._model.tex_height[self.texture_id]), int(self._model.tex_width[self.texture_id])
         self.original_shape = (height, width)
@@ -136,24 +123,6 @@ class TextureSlot:
         if self._stale:
             renderer.upload_texture(self.texture_id)
             self._stale = False
-
-
-def rotation_x(degrees: float) -> np.ndarray:
-    """3x3 rotation about x by ``degrees``."""
-    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def rotation_y(degrees: float) -> np.ndarray:
-    """3x3 rotation about y by ``degrees``."""
-    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def rotation_z(degrees: float) -> np.ndarray:
-    """3x3 rotation about z by ``degrees``."""
-    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def camera_frame_override(physics: Physics, camera_id: int, rotation: np.ndarray) -> list:

@@ -7,11 +7,12 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
+from dm_control.utils import transformations
 
 from sgfd_envs.benchmarks import dcs, dmcgb2
 from sgfd_envs.benchmarks.dmcgb2 import EASY_SHIFT_DIVISOR, SHIFT_LIMITS, rotation_angles, shift_angles
 from sgfd_envs.benchmarks.media import dmcgb_clips, procedural_colour_set
-from sgfd_envs.benchmarks.scene import rotation_x, rotation_y, rotation_z, video_texture
+from sgfd_envs.benchmarks.scene import video_texture
 
 SIZE = 32
 
@@ -70,9 +71,9 @@ def test_shift_pans_and_tilts_the_camera_inside_the_rectangle(mode):
     poses = shift_angles("cartpole", difficulty)
     for rotation, index in zip(rotations, indices, strict=True):
         a, b = poses[index]
-        expected = rotation_y(a) @ rotation_x(b)
+        expected = transformations.rotation_y_axis(np.radians(a)) @ transformations.rotation_x_axis(np.radians(b))
         if mode.startswith("rotate"):
-            expected = expected @ rotation_z(rotation_angles(difficulty)[index])
+            expected = expected @ transformations.rotation_z_axis(np.radians(rotation_angles(difficulty)[index]))
         np.testing.assert_allclose(rotation, expected, atol=1e-12)
 
 
