@@ -24,7 +24,13 @@ import cv2
 import numpy as np
 from dm_control.suite import common
 
-from sgfd_envs.backgrounds import IMAGE_SUFFIXES, BackgroundSource, ProceduralBackground
+from sgfd_envs.backgrounds import (
+    IMAGE_SUFFIXES,
+    BackgroundSource,
+    ImageBackground,
+    ProceduralBackground,
+    VideoBackground,
+)
 from sgfd_envs.benchmarks.scene import suite_texture_attributes
 
 COLOUR_KEYS = ("grid_rgb1", "grid_rgb2", "self_rgb", "skybox_rgb")
@@ -179,80 +185,6 @@ def check_data_dir(data_dir: str | Path) -> Path:
 # --- clips -----------------------------------------------------------------------------------------------
 
 
-class VideoClip:
-    """A video file's frames, each resized whole (no crop) to size x size, decoded as they are first needed.
-
-    :param path: a video OpenCV can read
-    :param size: frame height and width
-    :param interpolation: OpenCV interpolation of the resize (DMC-GB: bilinear)
-    """
-
-    def __init__(self, path: str | Path, size: int, interpolation: int = cv2.INTER_LINEAR) -> None:
-        self.path = str(path)
-        self.size = size
-        self._interpolation = interpolation
-        self._frames: list[np.ndarray] = []
-        self._capture: cv2.VideoCapture | None = None
-        self._exhausted = False
-
-    def _decode_until(self, index: int) -> None:
-        while len(self._frames) <= index and not self._exhausted:
-            if self._capture is None:
-                self._capture = cv2.VideoCapture(self.path)
-            ok, frame = self._capture.read()
-            if not ok:
-                self._exhausted = True
-                self._capture.release()
-                break
-            resized = cv2.resize(frame, (self.size, self.size), interpolation=self._interpolation)
-            self._frames.append(cv2.cvtColor(resized, cv2.COLOR_BGR2RGB))
-        if not self._frames:
-            raise ValueError(f"data_dir: OpenCV could not read any frame of the video {self.path!r}")
-
-    @property
-    def n_frames(self) -> int:
-        self._decode_until(2**62)
-        return len(self._frames)
-
-    def frame(self, index: int) -> np.ndarray:
-        self._decode_until(index)
-        if index >= len(self._frames):
-            index %= len(self._frames)
-        return self._frames[index]
-
-
-class ImageFolderClip:
-    """A folder of frames (DAVIS: ``00000.jpg``, ...) in name order, each resized whole to size x size.
-
-    :param folder: the video's folder
-    :param size: frame height and width
-    :param interpolation: OpenCV interpolation of the resize
-    """
-
-    def __init__(self, folder: str | Path, size: int, interpolation: int = cv2.INTER_AREA) -> None:
-        self.folder = Path(folder)
-        self.size = size
-        self._interpolation = interpolation
-        self._files = sorted(p for p in self.folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-        if not self._files:
-            raise ValueError(f"background_dir: the video folder {str(self.folder)!r} holds no image")
-        self._cache: dict[int, np.ndarray] = {}
-
-    @property
-    def n_frames(self) -> int:
-        return len(self._files)
-
-    def frame(self, index: int) -> np.ndarray:
-        index %= len(self._files)
-        if index not in self._cache:
-            image = cv2.imread(str(self._files[index]), cv2.IMREAD_COLOR)
-            if image is None:
-                raise ValueError(f"background_dir: OpenCV could not read the image {str(self._files[index])!r}")
-            resized = cv2.resize(image, (self.size, self.size), interpolation=self._interpolation)
-            self._cache[index] = cv2.cvtColor(resized, cv2.COLOR_BGR2RGB)
-        return self._cache[index]
-
-
 class ResizedSource:
     """A source's frames resized (bilinear) to size x size, each once.
 
@@ -330,7 +262,12 @@ def dmcgb_clips(mode: str, size: int, data_dir: str | Path | None, interpolation
             f"data_dir: {str(folder)!r} lacks {len(missing)} of DMC-GB's {count} clips ({', '.join(missing[:5])}"
             f"{', ...' if len(missing) > 5 else ''})"
         )
-    return ClipBank([str(p) for p in paths], lambda i: VideoClip(paths[i], size, interpolation))
+    return ClipBank(
+        [str(p) for p in paths],
+        lambda i: VideoBackground(
+            paths[i], size, size, frame_budget=None, crop=False, interpolation=interpolation, argument="data_dir"
+        ),
+    )
 
 
 def davis_clips(
@@ -363,7 +300,20 @@ def davis_clips(
             f"background_dir: {str(folder)!r} lacks {len(missing)} of the {len(videos)} DAVIS {split} videos this "
             f"split uses ({', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''})"
         )
-    return ClipBank(list(videos), lambda i: ImageFolderClip(folder / videos[i], size, interpolation))
+    return ClipBank(list(videos), lambda i: davis_video(folder / videos[i], size, interpolation))
+
+
+def davis_video(folder: Path, size: int, interpolation: int) -> BackgroundSource:
+    """A DAVIS video: its folder's images in name order (``00000.jpg``, ...), each resized whole to size x size.
+
+    :param folder: the video's folder
+    :param size: frame height and width
+    :param interpolation: OpenCV interpolation of the resize
+    """
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise ValueError(f"background_dir: the video folder {str(folder)!r} holds no image")
+    return ImageBackground(files, size, size, crop=False, interpolation=interpolation)
 
 
 def davis_folder(background_dir: str | Path) -> Path:
