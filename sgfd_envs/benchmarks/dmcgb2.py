@@ -42,7 +42,7 @@ from sgfd_envs import domains
 from sgfd_envs.benchmarks.dmcgb import SceneColours
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
 from sgfd_envs.benchmarks.scene import TextureSlot, camera_frame_override, video_texture
-from sgfd_envs.morphology import find_child
+from sgfd_envs.domains.suite_xml import find_child
 from sgfd_envs.rendering import CameraRenderer
 
 NAME = "DMCGB2"
