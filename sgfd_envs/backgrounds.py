@@ -7,10 +7,9 @@ starts at a random index on reset and advances one frame per step, wrapping arou
   deterministic per seed, from disjoint train and test seed banks. Needs no download.
 - :class:`VideoBackground`: the first ``frame_budget`` frames of a video file, read with OpenCV
   (e.g. the Kinetics clips of DBC and AMBS).
-- :class:`ImageBackground`: one still image.
+- :class:`ImageBackground`: one still image (or a video stored as one image per frame).
 
-A user's folder (``background_dir``) either has ``train/`` and ``test/`` subfolders, one source per
-file, or is flat: its sorted files give the first four training sources and the rest the test ones.
+Which source is which domain of a split (the seed banks, a user's folder) is :mod:`sgfd_envs.background_splits`.
 """
 
 from __future__ import annotations
@@ -23,16 +22,20 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-BACKGROUND_SPLITS = ("train", "test")
-# Disjoint seed banks: a test texture is never a training one.
-PROCEDURAL_SEEDS: dict[str, tuple[int, ...]] = {"train": (0, 1, 2, 3), "test": (1000, 1001, 1002, 1003)}
-# SGQN's overlay images (Places365 in its paper): a third bank, disjoint from the training and test backgrounds.
-OVERLAY_SEEDS = tuple(range(2000, 2032))
-TRAIN_SOURCES_IN_FLAT_FOLDER = 4
-DEFAULT_FRAME_BUDGET = 1000
+from sgfd_envs.background_splits import (
+    OVERLAY_SEEDS,
+    PROCEDURAL_SEEDS,
+    VIDEO_SUFFIXES,
+    background_files,
+    check_background_split,
+)
 
-VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp", ".tif", ".tiff")
+# Their home before they moved to the import-light module, kept.
+from sgfd_envs.background_splits import BACKGROUND_SPLITS as BACKGROUND_SPLITS  # isort: skip
+from sgfd_envs.background_splits import IMAGE_SUFFIXES as IMAGE_SUFFIXES  # isort: skip
+from sgfd_envs.background_splits import n_background_domains as n_background_domains  # isort: skip
+
+DEFAULT_FRAME_BUDGET = 1000
 
 
 class BackgroundSource(Protocol):
@@ -316,68 +319,7 @@ class ImageBackground:
         return self._frames[index]
 
 
-# --- splits and domains ---------------------------------------------------------------------------
-
-
-def check_background_split(split: str) -> str:
-    """Return ``split`` if it is a background split, else raise.
-
-    :param split: ``"train"`` or ``"test"``
-    """
-    if split not in BACKGROUND_SPLITS:
-        raise ValueError(f"split must be one of {BACKGROUND_SPLITS} for background ids, got {split!r}")
-    return split
-
-
-def _media_files(folder: Path) -> tuple[Path, ...]:
-    return tuple(
-        sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES + IMAGE_SUFFIXES)
-    )
-
-
-def background_files(background_dir: str | Path) -> dict[str, tuple[Path, ...]]:
-    """The source files of each split in a user's folder.
-
-    :param background_dir: folder with ``train/`` and ``test/`` subfolders, or a flat folder of at
-        least five videos/images (the first four, sorted by name, are the training sources)
-    """
-    folder = Path(background_dir).expanduser()
-    if not folder.is_dir():
-        raise FileNotFoundError(f"background_dir {str(folder)!r} is not an existing folder")
-    suffixes = ", ".join(VIDEO_SUFFIXES + IMAGE_SUFFIXES)
-    subfolders = {split: folder / split for split in BACKGROUND_SPLITS}
-    present = [split for split, sub in subfolders.items() if sub.is_dir()]
-    if present:
-        if len(present) != len(BACKGROUND_SPLITS):
-            raise ValueError(
-                f"background_dir {str(folder)!r} has {present[0]}/ but no "
-                f"{({*BACKGROUND_SPLITS} - {*present}).pop()}/: give both or neither"
-            )
-        files = {split: _media_files(sub) for split, sub in subfolders.items()}
-        for split, found in files.items():
-            if not found:
-                raise ValueError(f"background_dir {str(subfolders[split])!r} holds no video or image ({suffixes})")
-        return files
-    found = _media_files(folder)
-    if len(found) <= TRAIN_SOURCES_IN_FLAT_FOLDER:
-        raise ValueError(
-            f"background_dir {str(folder)!r} holds {len(found)} videos/images ({suffixes}); a flat folder "
-            f"needs at least {TRAIN_SOURCES_IN_FLAT_FOLDER + 1} ({TRAIN_SOURCES_IN_FLAT_FOLDER} training, "
-            "the rest for testing), or use train/ and test/ subfolders"
-        )
-    return {"train": found[:TRAIN_SOURCES_IN_FLAT_FOLDER], "test": found[TRAIN_SOURCES_IN_FLAT_FOLDER:]}
-
-
-def n_background_domains(split: str, background_dir: str | Path | None = None) -> int:
-    """Number of background sources (domains) in a split.
-
-    :param split: ``"train"`` or ``"test"``
-    :param background_dir: a user's folder, or None for the built-in procedural banks
-    """
-    check_background_split(split)
-    if background_dir is None:
-        return len(PROCEDURAL_SEEDS[split])
-    return len(background_files(background_dir)[split])
+# --- the source of a domain ---------------------------------------------------------------------
 
 
 def make_background(

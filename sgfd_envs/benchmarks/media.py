@@ -24,8 +24,8 @@ import cv2
 import numpy as np
 from dm_control.suite import common
 
+from sgfd_envs.background_splits import IMAGE_SUFFIXES
 from sgfd_envs.backgrounds import (
-    IMAGE_SUFFIXES,
     BackgroundSource,
     ImageBackground,
     ProceduralBackground,
