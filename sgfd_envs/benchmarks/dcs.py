@@ -40,16 +40,15 @@ import numpy as np
 from dm_control.mujoco import Physics
 from dm_control.utils import transformations
 
+from sgfd_envs.benchmarks import facts
 from sgfd_envs.benchmarks.media import ClipBank, davis_clips
 from sgfd_envs.benchmarks.scene import TextureSlot, video_texture
 from sgfd_envs.rendering import CameraRenderer
 
-NAME = "DCS"
-SPLITS = ("train", "easy", "medium", "hard")
-DIFFICULTY_SCALE = {"easy": 0.1, "medium": 0.2, "hard": 0.3}
-DIFFICULTY_VIDEOS = {"easy": 4, "medium": 8, "hard": None}
-DISTRACTIONS = ("background", "camera", "colour")
-VIDEO_SPLITS = ("train", "validation")
+# The facts the id table reads (benchmarks/facts.py, import-light), under this module's names.
+NAME, SPLITS, TASKS = facts.DCS, facts.DCS_SPLITS, facts.DCS_TASKS
+DIFFICULTY_SCALE, DIFFICULTY_VIDEOS, DIFFICULTIES = facts.DIFFICULTY_SCALE, facts.DIFFICULTY_VIDEOS, facts.DIFFICULTIES
+DISTRACTIONS, VIDEO_SPLITS, check_distractions = facts.DISTRACTIONS, facts.VIDEO_SPLITS, facts.check_distractions
 # The DAVIS 2017 video names of DCS's train and validation lists, in its order (the easy and medium
 # difficulties take the first 4 and 8).
 DAVIS_VIDEOS = {
@@ -70,20 +69,6 @@ DAVIS_VIDEOS = {
         "paragliding-launch", "parkour", "pigs", "scooter-black", "shooting", "soapbox",
     ),
 }  # fmt: skip
-# (domain, task) -> action repeat. DCS's code fixes none; these are PlaNet's per-task values, which pixel-based
-# agents (CURL, RAD, DrQ) use on these six tasks.
-TASKS: dict[tuple[str, str], int] = {
-    ("ball_in_cup", "catch"): 4,
-    ("cartpole", "swingup"): 8,
-    ("cheetah", "run"): 4,
-    ("finger", "spin"): 2,
-    ("reacher", "easy"): 4,
-    ("walker", "walk"): 2,
-}
-# DCS's difficulty -> (scale, videos of the list); None: all of them.
-DIFFICULTIES: dict[str, tuple[float, int | None]] = {
-    name: (DIFFICULTY_SCALE[name], DIFFICULTY_VIDEOS[name]) for name in DIFFICULTY_SCALE
-}
 GROUND_ALPHA = {"reacher": 0.0, "walker": 1.0, "cheetah": 1.0}
 DEFAULT_GROUND_ALPHA = 0.3
 SKY_TEXTURE_SIDE = 800
@@ -97,17 +82,6 @@ def sky_texture_side(image_size: int, render: str = "benchmark") -> int:
     """Side of the sky texture the video is written to: DCS's 800, or with ``render="fast"`` twice the
     observation's side (at most 800)."""
     return video_texture(SKY_TEXTURE_SIDE, RESIZE, image_size, render)[0]
-
-
-def check_distractions(distractions: Sequence[str]) -> tuple[str, ...]:
-    """``distractions`` as a tuple if it is a non-empty subset of :data:`DISTRACTIONS`, else a ValueError."""
-    if isinstance(distractions, str):
-        distractions = (distractions,)
-    chosen = tuple(dict.fromkeys(distractions))
-    unknown = [d for d in chosen if d not in DISTRACTIONS]
-    if not chosen or unknown:
-        raise ValueError(f"distractions must be a non-empty subset of {DISTRACTIONS}, got {tuple(distractions)!r}")
-    return chosen
 
 
 # --- camera ----------------------------------------------------------------------------------------------

@@ -34,28 +34,16 @@ import cv2
 import numpy as np
 from dm_control.mujoco import Physics
 
+from sgfd_envs.benchmarks import facts
 from sgfd_envs.benchmarks.dcs import DISTRACTIONS, DCSDistraction
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
 from sgfd_envs.benchmarks.scene import TextureSlot, rgb_attribute, suite_texture_data
 from sgfd_envs.rendering import CameraRenderer
 
-NAME = "DMCGB"
-DISTRACTING_CS = "distracting_cs"
-MODES = ("train", "color_easy", "color_hard", "video_easy", "video_hard")
-# distracting_cs: intensity -> how many of DAVIS's training videos the background draws from (None: all 60).
-DISTRACTING_CS_VIDEOS: dict[float, int | None] = {
-    0.025: 2, 0.05: 2, 0.1: 4, 0.15: 6, 0.2: 8, 0.3: None, 0.4: None, 0.5: None
-}  # fmt: skip
-INTENSITIES = tuple(DISTRACTING_CS_VIDEOS)
+# The facts the id table reads (benchmarks/facts.py, import-light), under this module's names.
+NAME, MODES, TASKS, DISTRACTING_CS = facts.DMCGB, facts.DMCGB_MODES, facts.DMCGB_TASKS, facts.DISTRACTING_CS
+DISTRACTING_CS_VIDEOS, INTENSITIES = facts.DISTRACTING_CS_VIDEOS, facts.INTENSITIES
 DISTRACTING_CS_UPDATE_EVERY = 2
-# (domain, task) -> action repeat, DMC-GB's defaults.
-TASKS: dict[tuple[str, str], int] = {
-    ("walker", "walk"): 4,
-    ("walker", "stand"): 4,
-    ("cartpole", "swingup"): 4,
-    ("ball_in_cup", "catch"): 4,
-    ("finger", "spin"): 2,
-}
 # DMC-GB's green screen: the colour of the sky (and floor) in its video modes, and the HSV box it keys out (hue in
 # degrees, saturation and value out of 255).
 GREEN_SCREEN_RGB = (0.2, 0.8, 0.2)

@@ -39,26 +39,18 @@ from dm_control.rl import control
 from dm_control.utils import transformations
 
 from sgfd_envs import domains
+from sgfd_envs.benchmarks import facts
 from sgfd_envs.benchmarks.dmcgb import SceneColours
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
 from sgfd_envs.benchmarks.scene import TextureSlot, camera_frame_override, video_texture
 from sgfd_envs.domains.suite_xml import find_child
 from sgfd_envs.rendering import CameraRenderer
 
-NAME = "DMCGB2"
-GEOMETRIC_MODES = ("rotate_easy", "rotate_hard", "shift_easy", "shift_hard", "rotate_shift_easy", "rotate_shift_hard")
-PHOTOMETRIC_MODES = ("color_easy", "color_hard", "video_easy", "video_hard", "color_video_easy", "color_video_hard")
-MODES = ("train", *GEOMETRIC_MODES, *PHOTOMETRIC_MODES)
+# The facts the id table reads (benchmarks/facts.py, import-light), under this module's names.
+NAME, MODES, TASKS = facts.DMCGB2, facts.DMCGB2_MODES, facts.DMCGB2_TASKS
+GEOMETRIC_MODES, PHOTOMETRIC_MODES = facts.GEOMETRIC_MODES, facts.PHOTOMETRIC_MODES
 # How DMC-GB2's Pillow resizes a DAVIS frame or a clip frame (its default filter, bicubic), in OpenCV.
 RESIZE = cv2.INTER_CUBIC
-TASKS: dict[tuple[str, str], int] = {
-    ("walker", "walk"): 2,
-    ("walker", "stand"): 2,
-    ("cheetah", "run"): 2,
-    ("finger", "spin"): 2,
-    ("cartpole", "swingup"): 2,
-    ("ball_in_cup", "catch"): 2,
-}
 POSES = 100
 ROTATION_LIMIT = {"easy": 90.0, "hard": 180.0}
 # Degrees: (max a, min a, max b, min b) of the shift rectangle, hard; easy divides them by EASY_SHIFT_DIVISOR.
