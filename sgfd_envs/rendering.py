@@ -75,16 +75,18 @@ class CameraRenderer(engine.Camera):
         self.camera_id = camera_id
         self.size = size
         self.hide_backdrop = bool(hide_backdrop)
-        self._flags: dict[mujoco.mjtRndFlag, bool] = {}
+        # Set on this camera's own scene once: set and restored around every render (dm_control's
+        # render_flag_overrides), they make each render measurably slower.
         if render == "fast":
-            self._flags |= {mujoco.mjtRndFlag.mjRND_SHADOW: False, mujoco.mjtRndFlag.mjRND_REFLECTION: False}
+            self.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+            self.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
         if self.hide_backdrop:
             planes = model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE
             if np.any(model.geom_group[~planes] == self._HIDDEN_GROUP):
                 raise RuntimeError(f"geom group {self._HIDDEN_GROUP} is in use; cannot hide the floor with it")
             model.geom_group[planes] = self._HIDDEN_GROUP
             self.option.geomgroup[self._HIDDEN_GROUP] = 0
-            self._flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = False
+            self.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
             # dm_control's Camera reads the colour into this buffer; with the coverage it reads RGBA, in one read.
             self._rgb_buffer = np.empty((size, size, 4), dtype=np.uint8)
 
@@ -107,7 +109,7 @@ class CameraRenderer(engine.Camera):
                 # mjr_readPixels reads in the context's format: RGBA for this render only, since dm_control's
                 # physics.render shares the context and reads 3 bytes a pixel.
                 context.readPixelFormat = _GL_RGBA
-            return super().render(render_flag_overrides=self._flags)
+            return super().render()
         finally:
             context.readPixelFormat = rgb_format
             for array, row, value in saved:
