@@ -89,12 +89,16 @@ class CameraRenderer(engine.Camera):
             self.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
             # dm_control's Camera reads the colour into this buffer; with the coverage it reads RGBA, in one read.
             self._rgb_buffer = np.empty((size, size, 4), dtype=np.uint8)
+        # Textures sent to the GPU and frames read back since the camera was made (each a synchronous transfer).
+        self.uploads = 0
+        self.readbacks = 0
 
     def upload_texture(self, texture_id: int) -> None:
         """Send texture ``texture_id`` of the model (after its ``tex_data`` or size changed) to the GPU."""
         contexts = self._physics.contexts
         with contexts.gl.make_current() as ctx:
             ctx.call(mujoco.mjr_uploadTexture, self._physics.model.ptr, contexts.mujoco.ptr, texture_id)
+        self.uploads += 1
 
     def _draw(self, overrides: Sequence[tuple[np.ndarray, int, np.ndarray]]) -> np.ndarray:
         """dm_control's render of the current state with ``overrides`` set during it: a view of the reused buffer,
@@ -109,6 +113,7 @@ class CameraRenderer(engine.Camera):
                 # mjr_readPixels reads in the context's format: RGBA for this render only, since dm_control's
                 # physics.render shares the context and reads 3 bytes a pixel.
                 context.readPixelFormat = _GL_RGBA
+            self.readbacks += 1
             return super().render()
         finally:
             context.readPixelFormat = rgb_format
