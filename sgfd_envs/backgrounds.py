@@ -74,9 +74,10 @@ def fit_frame(
     *,
     crop: bool = True,
     interpolation: int = cv2.INTER_AREA,
+    halvings: int = 0,
 ) -> np.ndarray:
     """An OpenCV frame fitted to the observation: centre-cropped to its aspect ratio (or, with ``crop=False``, resized
-    whole, as the benchmarks resize their clips), resized, and made RGB.
+    whole, as the benchmarks resize their clips), resized, made RGB, and halved ``halvings`` times (:func:`halve`).
 
     :param frame_bgr: uint8 (h, w, 3) BGR frame as OpenCV reads it
     :param height: output height
@@ -84,6 +85,8 @@ def fit_frame(
     :param grayscale: replicate the luma into the three channels (as DBC does)
     :param crop: centre-crop to the output's aspect ratio before resizing
     :param interpolation: OpenCV interpolation of the resize
+    :param halvings: 2x2 averagings after the resize (a texture's mip level, see
+        :class:`sgfd_envs.benchmarks.scene.VideoTexture`)
     """
     if crop:
         rows, cols = frame_bgr.shape[:2]
@@ -95,10 +98,22 @@ def fit_frame(
             keep = max(1, round(cols * height / width))
             start = (rows - keep) // 2
             frame_bgr = frame_bgr[start : start + keep]
-    resized = cv2.resize(frame_bgr, (width, height), interpolation=interpolation)
+    resized = halve(cv2.resize(frame_bgr, (width, height), interpolation=interpolation), halvings)
     if grayscale:
         return np.repeat(cv2.cvtColor(resized, cv2.COLOR_BGR2GRAY)[..., np.newaxis], 3, axis=2)
     return cv2.cvtColor(resized, cv2.COLOR_BGR2RGB)
+
+
+def halve(image: np.ndarray, times: int = 1) -> np.ndarray:
+    """``image`` halved ``times`` times, each pixel the average of a 2x2 block (rounded), as a GPU makes a texture's
+    next mip level.
+
+    :param image: uint8 (H, W, C) image, H and W divisible by ``2 ** times``
+    :param times: how many halvings
+    """
+    for _ in range(times):
+        image = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    return image
 
 
 # --- built-in procedural source ------------------------------------------------------------------
@@ -223,6 +238,7 @@ class VideoBackground:
     :param grayscale: replicate the luma into the three channels (DBC's setting)
     :param crop: centre-crop each frame to the output's aspect ratio (else resize it whole)
     :param interpolation: OpenCV interpolation of the resize
+    :param halvings: 2x2 averagings after it (frames of ``height >> halvings`` by ``width >> halvings``)
     :param argument: the keyword argument that gave the file, for messages
     """
 
@@ -236,12 +252,19 @@ class VideoBackground:
         *,
         crop: bool = True,
         interpolation: int = cv2.INTER_AREA,
+        halvings: int = 0,
         argument: str = "background_dir",
     ) -> None:
         self.path = str(path)
         self.height, self.width, self.frame_budget, self.grayscale = height, width, frame_budget, grayscale
         self._fit = functools.partial(
-            fit_frame, height=height, width=width, grayscale=grayscale, crop=crop, interpolation=interpolation
+            fit_frame,
+            height=height,
+            width=width,
+            grayscale=grayscale,
+            crop=crop,
+            interpolation=interpolation,
+            halvings=halvings,
         )
         self._frames: list[np.ndarray] = []
         self._capture: cv2.VideoCapture | None = cv2.VideoCapture(self.path)
@@ -280,6 +303,7 @@ class ImageBackground:
     :param grayscale: replicate the luma into the three channels
     :param crop: centre-crop each image to the output's aspect ratio (else resize it whole)
     :param interpolation: OpenCV interpolation of the resize
+    :param halvings: 2x2 averagings after it (frames of ``height >> halvings`` by ``width >> halvings``)
     :param argument: the keyword argument that gave the files, for messages
     """
 
@@ -292,12 +316,19 @@ class ImageBackground:
         *,
         crop: bool = True,
         interpolation: int = cv2.INTER_AREA,
+        halvings: int = 0,
         argument: str = "background_dir",
     ) -> None:
         self.paths = (Path(paths),) if isinstance(paths, (str, Path)) else tuple(Path(p) for p in paths)
         self.height, self.width, self.grayscale = height, width, grayscale
         self._fit = functools.partial(
-            fit_frame, height=height, width=width, grayscale=grayscale, crop=crop, interpolation=interpolation
+            fit_frame,
+            height=height,
+            width=width,
+            grayscale=grayscale,
+            crop=crop,
+            interpolation=interpolation,
+            halvings=halvings,
         )
         self._argument = argument
         self._frames: dict[int, np.ndarray] = {}

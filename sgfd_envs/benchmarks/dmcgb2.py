@@ -20,8 +20,9 @@ Facts taken from its code:
 - Action repeat 2 for every task, 84x84 frames, 100 test episodes at the end of training.
 
 The screen is a site with a cube texture whose faces all show the frame, as in DMC-GB2; MuJoCo draws it.
-The frame is resized (bicubic, as DMC-GB2's Pillow) to DMC-GB2's 256 x 256 texture; with ``render="fast"`` to
-a texture of side ``min(256, 2 * image_size)`` (area resize), faster to send to the GPU.
+The frame is resized (bicubic, as DMC-GB2's Pillow) to DMC-GB2's 256 x 256, then averaged down to the finest mip
+level the observation reads (128 x 128 at 84 px: :func:`projector_texture`); with ``render="fast"`` the resize is to
+``min(256, 2 * image_size)`` by area.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ from sgfd_envs import domains
 from sgfd_envs.benchmarks import facts
 from sgfd_envs.benchmarks.dmcgb import SceneColours
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
-from sgfd_envs.benchmarks.scene import TextureSlot, camera_frame_override, video_texture
+from sgfd_envs.benchmarks.scene import TextureSlot, VideoTexture, camera_frame_override, video_texture
 from sgfd_envs.domains.suite_xml import find_child
 from sgfd_envs.rendering import CameraRenderer
 
@@ -73,6 +74,9 @@ PROJECTORS = {
 # Walker and cheetah move: the screen's x and z follow the torso's subtree centre of mass, plus these offsets.
 PROJECTOR_FOLLOWS = {"walker": (0.0, -1.07), "cheetah": (-0.05, 0.15)}
 PROJECTOR_TEXTURE_SIDE = 256
+# The screen's texture is minified at every pixel of an H px frame while its side is at least this many H, in every
+# domain's view of its screen (at 84 px the 128 px texture gives the 256 px one's frame, the 64 px one does not).
+PROJECTOR_TEXELS_PER_PIXEL = 1.5
 _PROJECTOR = "video_screen"
 
 
@@ -102,10 +106,20 @@ def shift_angles(domain: str, difficulty: str) -> np.ndarray:
     return np.concatenate([corners[i] + steps * (corners[(i + 1) % 4] - corners[i]) for i in range(4)])
 
 
+def projector_texture(image_size: int, render: str = "benchmark") -> VideoTexture:
+    """How a clip frame becomes the screen's texture: resized whole (bicubic) to DMC-GB2's 256 x 256 (with
+    ``render="fast"`` to twice the observation's side, by area), then halved to the finest mip level an
+    observation of ``image_size`` reads (128 at 84 px).
+
+    :param image_size: observation height and width
+    :param render: one of :data:`sgfd_envs.rendering.RENDER_MODES`
+    """
+    return video_texture(PROJECTOR_TEXTURE_SIDE, RESIZE, image_size, render, PROJECTOR_TEXELS_PER_PIXEL)
+
+
 def projector_texture_side(image_size: int, render: str = "benchmark") -> int:
-    """Side of the screen's texture: DMC-GB2's 256, or with ``render="fast"`` twice the observation's side (at most
-    256)."""
-    return video_texture(PROJECTOR_TEXTURE_SIDE, RESIZE, image_size, render)[0]
+    """Side of the screen's texture (:func:`projector_texture`)."""
+    return projector_texture(image_size, render).side
 
 
 def load_with_projector(domain: str, task: str, texture_side: int) -> control.Environment:
@@ -183,10 +197,12 @@ class DMCGB2Distraction:
         self._scene_colours = SceneColours(physics, colour_set(difficulty, data_dir)) if "color" in parts else None
         self._clips: ClipBank | None = None
         if "video" in parts:
-            side, resize = video_texture(PROJECTOR_TEXTURE_SIDE, RESIZE, image_size, render)
-            self._clips = dmcgb_clips(f"video_{difficulty}", side, data_dir, interpolation=resize)
+            texture = projector_texture(image_size, render)
+            self._clips = dmcgb_clips(
+                f"video_{difficulty}", texture.resize_side, data_dir, texture.interpolation, texture.halvings
+            )
             self._screen = TextureSlot(physics, _PROJECTOR)
-            self._screen_side = side
+            self._screen_side = texture.side
             self._screen_site = physics.model.name2id(_PROJECTOR, "site")
             if mode == "video_hard":
                 physics.model.mat_rgba[physics.model.name2id("grid", "material"), 3] = 0.0

@@ -239,20 +239,23 @@ class ClipBank:
         return self._clip
 
 
-def dmcgb_clips(mode: str, size: int, data_dir: str | Path | None, interpolation: int = cv2.INTER_LINEAR) -> ClipBank:
+def dmcgb_clips(
+    mode: str, size: int, data_dir: str | Path | None, interpolation: int = cv2.INTER_LINEAR, halvings: int = 0
+) -> ClipBank:
     """DMC-GB's clips of ``video_easy`` (10) or ``video_hard`` (100), from ``data_dir`` or procedural.
 
     :param mode: ``"video_easy"`` or ``"video_hard"``
-    :param size: frame height and width
+    :param size: the side each frame is resized to
     :param data_dir: DMC-GB's data folder, or None for the stand-ins
     :param interpolation: OpenCV interpolation of the resize
+    :param halvings: 2x2 averagings after it (frames of side ``size >> halvings``; the stand-ins are drawn so)
     """
     count = DMCGB_CLIP_COUNTS[mode]
     if data_dir is None:
         seeds = [DMCGB_CLIP_SEEDS[mode] + i for i in range(count)]
         return ClipBank(
             [f"procedural {seed}" for seed in seeds],
-            lambda i: procedural_clip(seeds[i], size, DMCGB_CLIP_FRAMES[mode]),
+            lambda i: procedural_clip(seeds[i], size >> halvings, DMCGB_CLIP_FRAMES[mode]),
         )
     folder = check_data_dir(data_dir) / mode
     paths = [folder / f"video{i}.mp4" for i in range(count)]
@@ -262,12 +265,13 @@ def dmcgb_clips(mode: str, size: int, data_dir: str | Path | None, interpolation
             f"data_dir: {str(folder)!r} lacks {len(missing)} of DMC-GB's {count} clips ({', '.join(missing[:5])}"
             f"{', ...' if len(missing) > 5 else ''})"
         )
-    return ClipBank(
-        [str(p) for p in paths],
-        lambda i: VideoBackground(
-            paths[i], size, size, frame_budget=None, crop=False, interpolation=interpolation, argument="data_dir"
-        ),
-    )
+
+    def open_clip(i: int) -> BackgroundSource:
+        return VideoBackground(
+            paths[i], size, size, None, crop=False, interpolation=interpolation, halvings=halvings, argument="data_dir"
+        )
+
+    return ClipBank([str(p) for p in paths], open_clip)
 
 
 def davis_clips(
@@ -276,21 +280,23 @@ def davis_clips(
     size: int,
     background_dir: str | Path | None,
     interpolation: int = cv2.INTER_AREA,
+    halvings: int = 0,
 ) -> ClipBank:
     """DAVIS videos by name (the Distracting Control Suite's lists), from ``background_dir`` or procedural.
 
     :param videos: the video names, in order
     :param split: ``"train"`` or ``"validation"`` (picks the stand-ins' seed bank)
-    :param size: frame height and width
+    :param size: the side each frame is resized to
     :param background_dir: DAVIS's ``JPEGImages/480p`` folder (or the DAVIS folder above it), or None
     :param interpolation: OpenCV interpolation of the resize of DAVIS's frames
+    :param halvings: 2x2 averagings after it (frames of side ``size >> halvings``; the stand-ins are drawn so)
     """
     if background_dir is None:
         seeds = [DAVIS_SEEDS[split] + i for i in range(len(videos))]
 
         def procedural(i: int) -> BackgroundSource:
             length = int(np.random.default_rng(seeds[i]).integers(DAVIS_FRAMES_RANGE[0], DAVIS_FRAMES_RANGE[1] + 1))
-            return procedural_clip(seeds[i], size, length)
+            return procedural_clip(seeds[i], size >> halvings, length)
 
         return ClipBank([f"procedural {seed}" for seed in seeds], procedural)
     folder = davis_folder(background_dir)
@@ -300,20 +306,21 @@ def davis_clips(
             f"background_dir: {str(folder)!r} lacks {len(missing)} of the {len(videos)} DAVIS {split} videos this "
             f"split uses ({', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''})"
         )
-    return ClipBank(list(videos), lambda i: davis_video(folder / videos[i], size, interpolation))
+    return ClipBank(list(videos), lambda i: davis_video(folder / videos[i], size, interpolation, halvings))
 
 
-def davis_video(folder: Path, size: int, interpolation: int) -> BackgroundSource:
+def davis_video(folder: Path, size: int, interpolation: int, halvings: int = 0) -> BackgroundSource:
     """A DAVIS video: its folder's images in name order (``00000.jpg``, ...), each resized whole to size x size.
 
     :param folder: the video's folder
-    :param size: frame height and width
+    :param size: the side each frame is resized to
     :param interpolation: OpenCV interpolation of the resize
+    :param halvings: 2x2 averagings after it
     """
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
         raise ValueError(f"background_dir: the video folder {str(folder)!r} holds no image")
-    return ImageBackground(files, size, size, crop=False, interpolation=interpolation)
+    return ImageBackground(files, size, size, crop=False, interpolation=interpolation, halvings=halvings)
 
 
 def davis_folder(background_dir: str | Path) -> Path:

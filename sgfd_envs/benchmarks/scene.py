@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import cv2
 import mujoco
@@ -67,20 +68,52 @@ def suite_texture_data(name: str, **changes: str) -> np.ndarray:
     return _compiled_texture(tuple(sorted(attributes.items())))
 
 
-def video_texture(benchmark_side: int, benchmark_resize: int, image_size: int, render: str) -> tuple[int, int]:
-    """The side of the square texture a benchmark writes video frames into, and the OpenCV interpolation that
-    resizes the frames to it: the benchmark's own with ``render="benchmark"``; with ``"fast"`` twice the
-    observation's side (never more than the benchmark's), resized by pixel area.
+@dataclass(frozen=True)
+class VideoTexture:
+    """How a video frame becomes the square texture a benchmark shows it on: resized whole to ``resize_side`` with
+    ``interpolation``, then averaged over 2x2 blocks ``halvings`` times. The averaging makes the texture's mip
+    level 0 the finest level a frame of the observation's size reads: MuJoCo draws textures mipmapped, so the finer
+    levels are never read, and neither made nor sent to the GPU (an 800 px sky seen at 84 px is read at level 1
+    and coarser).
+
+    :param resize_side: side the frame is resized to
+    :param interpolation: OpenCV interpolation of that resize
+    :param halvings: 2x2 averagings after it
+    """
+
+    resize_side: int
+    interpolation: int
+    halvings: int = 0
+
+    @property
+    def side(self) -> int:
+        """The texture's side."""
+        return self.resize_side >> self.halvings
+
+
+def video_texture(
+    benchmark_side: int, benchmark_resize: int, image_size: int, render: str, texels_per_pixel: float
+) -> VideoTexture:
+    """The texture a benchmark's video frames go into: resized as the benchmark resizes them to its side with
+    ``render="benchmark"``, with ``"fast"`` to twice the observation's side (at most the benchmark's) by pixel
+    area; then halved while the halved texture is still minified at every pixel of a frame (its side at least
+    ``texels_per_pixel`` observation sides): such a frame blends the same two mip levels as from the full texture.
 
     :param benchmark_side: the benchmark's texture side
     :param benchmark_resize: OpenCV's interpolation closest to the benchmark's resize
     :param image_size: the observation's height and width
     :param render: one of :data:`sgfd_envs.rendering.RENDER_MODES`
-    :return: ``(side, interpolation)``
+    :param texels_per_pixel: the least side, in observation sides, at which every pixel of a frame minifies the
+        texture (a property of where it is drawn and of the camera's field of view)
     """
     if check_render(render) == "benchmark":
-        return benchmark_side, benchmark_resize
-    return min(benchmark_side, 2 * image_size), cv2.INTER_AREA
+        side, interpolation = benchmark_side, benchmark_resize
+    else:
+        side, interpolation = min(benchmark_side, 2 * image_size), cv2.INTER_AREA
+    halvings = 0
+    while side % 2 ** (halvings + 1) == 0 and side >> (halvings + 1) >= texels_per_pixel * image_size:
+        halvings += 1
+    return VideoTexture(side, interpolation, halvings)
 
 
 class TextureSlot:
