@@ -27,6 +27,7 @@ Facts taken from its code:
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -53,11 +54,31 @@ GREEN_SCREEN_HSV_HIGH = (185.0, 255.0, 255.0)
 
 def green_screen_mask(rgb: np.ndarray) -> np.ndarray:
     """Where DMC-GB's green screen keys a frame out: the pixels whose HSV colour (Python's ``colorsys``
-    convention) lies in :data:`GREEN_SCREEN_HSV_LOW` .. :data:`GREEN_SCREEN_HSV_HIGH`.
+    convention) lies in :data:`GREEN_SCREEN_HSV_LOW` .. :data:`GREEN_SCREEN_HSV_HIGH`. Each colour's verdict is
+    worked out once per process (:func:`_green_screen_rule`) and looked up after.
 
     :param rgb: uint8 (H, W, 3) frame
     :return: bool (H, W)
     """
+    red, green, blue = (rgb[..., channel].astype(np.int32) for channel in range(3))
+    code = (red << 16) | (green << 8) | blue
+    verdicts = _green_screen_verdicts()
+    known = verdicts[code]
+    if (known < 0).any():
+        new = np.unique(code[known < 0])
+        verdicts[new] = _green_screen_rule(np.stack([new >> 16, (new >> 8) & 255, new & 255], axis=-1))
+        known = verdicts[code]
+    return known == 1
+
+
+@functools.lru_cache(maxsize=1)
+def _green_screen_verdicts() -> np.ndarray:
+    """Every 24-bit colour's verdict, indexed by ``r << 16 | g << 8 | b``: 1 keyed, 0 not, -1 not seen yet (16 MB)."""
+    return np.full(2**24, -1, dtype=np.int8)
+
+
+def _green_screen_rule(rgb: np.ndarray) -> np.ndarray:
+    """DMC-GB's key of colours (..., 3) in 0..255: ``colorsys``'s HSV, in its floating-point steps, within the box."""
     channels = rgb.astype(np.float64) / 255.0
     red, green, blue = channels[..., 0], channels[..., 1], channels[..., 2]
     high, low = channels.max(axis=-1), channels.min(axis=-1)
