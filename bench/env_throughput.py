@@ -1,6 +1,9 @@
 """Env steps per second at 84x84, at equal pixels: each benchmark's own way of making its frames against our id
 with the same render settings (dm_control's defaults: shadows, reflections, 4x multisampling), side by side in
-one run, and our fast path (``render="fast"``: none of the three) beside them.
+one run, and our fast path (``render="fast"``: none of the three) beside them. Each distracted row also runs our
+undistracted split of the same task (its ``train``, same action repeat and render) and prints what the distraction
+costs over it (``ours/undistracted``, time per agent step), with the textures our env sent to the GPU and the
+frames it read back per agent step.
 
 Each row steps the same task at the benchmark's action repeat with random actions. The methods of a row run in
 interleaved rounds, so machine load hits them alike; each figure is the median over rounds. The benchmarks'
@@ -27,7 +30,8 @@ floor, sky write and camera pose) are ``bench/benchmark_methods.py``'s, the very
 ``tests/envs/test_benchmarks_pixels.py`` checks that ours and theirs make the same pixels on the same state (all rows
 but the background one); this script measures the cost.
 
-Usage: ``python bench/env_throughput.py [--steps 40] [--rounds 3]``
+Usage: ``python bench/env_throughput.py [--steps 40] [--rounds 3]``; on a GPU (EGL) a quick look in about a minute:
+``python bench/env_throughput.py --steps 10 --rounds 2 --warmup 3``.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ import os
 import statistics
 import time
 from collections.abc import Callable
+from typing import cast
 
 import benchmark_methods as methods
 import gymnasium as gym
@@ -48,25 +53,45 @@ from PIL import Image
 from sgfd_envs import domains
 from sgfd_envs.backgrounds import ProceduralBackground, make_background
 from sgfd_envs.benchmarks import dcs, dmcgb, dmcgb2
+from sgfd_envs.dmc import DMCEnv
 from sgfd_envs.registry import task_entry
 
 IMAGE_SIZE = 84
 Stepper = Callable[[], np.ndarray]
 
 
-def gym_stepper(env_id: str, seed: int = 0, **kwargs) -> Stepper:
-    """One agent step of our id with a random action, resetting at episode ends; returns the observation."""
-    env = gym.make(env_id, **kwargs)
-    env.reset(seed=seed)
-    env.action_space.seed(seed)
+class GymStepper:
+    """One agent step of our id with a random action per call, resetting at episode ends; returns the observation.
+    Counts the steps and, through the env's renderer, the textures sent to the GPU and the frames read back."""
 
-    def step() -> np.ndarray:
-        observation, _, terminated, truncated, _ = env.step(env.action_space.sample())
+    def __init__(self, env_id: str, seed: int = 0, **kwargs) -> None:
+        self.env = gym.make(env_id, **kwargs)
+        self.env.reset(seed=seed)
+        self.env.action_space.seed(seed)
+        self.steps = 0
+        self._start = self._transferred()
+
+    def __call__(self) -> np.ndarray:
+        observation, _, terminated, truncated, _ = self.env.step(self.env.action_space.sample())
         if terminated or truncated:
-            env.reset()
+            self.env.reset()
+        self.steps += 1
         return observation
 
-    return step
+    def _transferred(self) -> tuple[int, int]:
+        renderer = cast(DMCEnv, self.env.unwrapped).renderer
+        assert renderer is not None  # made by the reset's frame
+        return renderer.uploads, renderer.readbacks
+
+    def transfers(self) -> tuple[float, float]:
+        """Textures sent and frames read back per agent step so far."""
+        (uploads, readbacks), (start_uploads, start_readbacks) = self._transferred(), self._start
+        return (uploads - start_uploads) / max(self.steps, 1), (readbacks - start_readbacks) / max(self.steps, 1)
+
+
+def gym_stepper(env_id: str, seed: int = 0, **kwargs) -> GymStepper:
+    """:class:`GymStepper` of our id."""
+    return GymStepper(env_id, seed, **kwargs)
 
 
 class Loop:
@@ -238,43 +263,52 @@ def measure(methods: dict[str, Stepper], steps: int, rounds: int, warmup: int) -
 
 
 def rows() -> dict[str, dict[str, Callable[[], Stepper]]]:
-    """Per row: its methods (ours, theirs, fast) as factories, made when the row runs."""
+    """Per row: its methods (ours, theirs, fast, and for a distracted row our undistracted split of the same task)
+    as factories, made when the row runs."""
+    # The undistracted split of each benchmark's walker-walk (its train split: its action repeat, dm_control's render).
+    dmcgb2_train = "DMCGB2/walker-walk-v0"  # action repeat 2, as the SGFD ids'
     return {
         "undistracted walker-walk (DMCGB2 train / physics.render)": {
-            "ours": lambda: gym_stepper("DMCGB2/walker-walk-v0"),
+            "ours": lambda: gym_stepper(dmcgb2_train),
             "theirs": lambda: plain_render_stepper("walker", "walk", 2),
-            "fast": lambda: gym_stepper("DMCGB2/walker-walk-v0", render="fast"),
+            "fast": lambda: gym_stepper(dmcgb2_train, render="fast"),
         },
         "SGFD walker-walk background / DBC colour rule": {
             "ours": lambda: gym_stepper("SGFD/walker-walk-v0"),
             "theirs": lambda: colour_rule_stepper("SGFD/walker-walk-v0"),
             "fast": lambda: gym_stepper("SGFD/walker-walk-v0", render="fast"),
+            "undistracted": lambda: gym_stepper(dmcgb2_train),
         },
         "DMC-GB walker-walk video_hard": {
             "ours": lambda: gym_stepper("DMCGB/walker-walk-v0", split="video_hard"),
             "theirs": lambda: dmcgb_video_stepper("walker", "walk"),
             "fast": lambda: gym_stepper("DMCGB/walker-walk-v0", split="video_hard", render="fast"),
+            "undistracted": lambda: gym_stepper("DMCGB/walker-walk-v0"),
         },
         "DMC-GB2 walker-walk video_hard": {
             "ours": lambda: gym_stepper("DMCGB2/walker-walk-v0", split="video_hard"),
             "theirs": lambda: dmcgb2_video_stepper("walker", "walk"),
             "fast": lambda: gym_stepper("DMCGB2/walker-walk-v0", split="video_hard", render="fast"),
+            "undistracted": lambda: gym_stepper(dmcgb2_train),
         },
         "DCS walker-walk hard, dynamic": {
             "ours": lambda: gym_stepper("DCS/walker-walk-v0", split="hard", dynamic=True),
             "theirs": lambda: dcs_stepper("walker", "walk", 2, 0.3, every=1, renders_each_step=False),
             "fast": lambda: gym_stepper("DCS/walker-walk-v0", split="hard", dynamic=True, render="fast"),
+            "undistracted": lambda: gym_stepper("DCS/walker-walk-v0"),
         },
         "DMC-GB walker-walk distracting_cs 0.5": {
             "ours": lambda: gym_stepper("DMCGB/walker-walk-v0", split="distracting_cs", intensity=0.5),
             "theirs": lambda: dcs_stepper("walker", "walk", 4, 0.5, every=2, renders_each_step=True),
             "fast": lambda: gym_stepper("DMCGB/walker-walk-v0", split="distracting_cs", intensity=0.5, render="fast"),
+            "undistracted": lambda: gym_stepper("DMCGB/walker-walk-v0"),
         },
     }
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Measure and print steps/s of each method of each row and our speed-ups."""
+    """Measure and print steps/s of each method of each row, our speed-ups, what a distraction costs over our
+    undistracted split, and our env's transfers per agent step."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=40, help="agent steps per method per round")
     parser.add_argument("--rounds", type=int, default=3)
@@ -289,11 +323,19 @@ def main(argv: list[str] | None = None) -> None:
     for name, factories in rows().items():
         if args.only and not any(word in name for word in args.only):
             continue
-        medians = measure({k: make() for k, make in factories.items()}, args.steps, args.rounds, args.warmup)
+        steppers = {k: make() for k, make in factories.items()}
+        medians = measure(steppers, args.steps, args.rounds, args.warmup)
         cells = "   ".join(f"{k} {v:7.1f} ({1000 / v:6.1f} ms)" for k, v in medians.items())
         ratio = medians["ours"] / medians["theirs"]
         fast = medians["fast"] / medians["theirs"]
-        print(f"  {name:<56} {cells}   ours/theirs {ratio:5.2f}x   fast/theirs {fast:5.2f}x")
+        ours = steppers["ours"]
+        assert isinstance(ours, GymStepper)
+        uploads, readbacks = ours.transfers()
+        cost = f"{medians['undistracted'] / medians['ours']:5.2f}x" if "undistracted" in medians else "    -"
+        print(
+            f"  {name:<56} {cells}   ours/theirs {ratio:5.2f}x   fast/theirs {fast:5.2f}x   ours/undistracted {cost}"
+            f"   uploads {uploads:.2f} readbacks {readbacks:.2f} per step"
+        )
 
 
 if __name__ == "__main__":

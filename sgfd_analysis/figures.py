@@ -34,8 +34,8 @@ from sb3_sgfd.sgfd.functional import classifier_accuracy, effective_sample_size
 from sgfd_zoo.algos import column_name
 from sgfd_zoo.arguments import ZooError, check_env_id
 from sgfd_zoo.experiment import wrap_like_training
-from sgfd_zoo.plot import mean_and_band
-from sgfd_zoo.runs import RunFolder, env_name, find_runs, select_run
+from sgfd_zoo.report.plot import mean_and_band
+from sgfd_zoo.runs.folders import RunFolder, env_name, find_runs, select_run
 
 # Inches per image panel; the figures are grids of these.
 PANEL = 1.3
@@ -376,7 +376,7 @@ def load_accuracy_curves(folder: Path, env_ids: list[str] | None = None) -> dict
 
 
 def mean_band(curves: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean and one standard deviation of the accuracy over runs (:func:`sgfd_zoo.plot.mean_and_band`)."""
+    """Mean and one standard deviation of the accuracy over runs (:func:`sgfd_zoo.report.plot.mean_and_band`)."""
     return mean_and_band([(curve["steps"], curve["accuracy"]) for curve in curves])
 
 

@@ -15,8 +15,9 @@ import os
 import sys
 import warnings
 
-# dm_control picks its OpenGL backend when it is first imported; EGL renders with no display and no
-# GPU (Mesa llvmpipe). A value the user set wins.
+# dm_control picks its OpenGL backend when it is first imported (here: when the first env is made, since importing
+# sgfd_envs and gym.spec load no simulator); EGL renders with no display and no GPU (Mesa llvmpipe). A value the
+# user set wins.
 if sys.platform.startswith("linux") and "MUJOCO_GL" not in os.environ:
     if "dm_control._render" in sys.modules:
         warnings.warn(
@@ -26,7 +27,6 @@ if sys.platform.startswith("linux") and "MUJOCO_GL" not in os.environ:
         )
     os.environ["MUJOCO_GL"] = "egl"
 
-# Imported after the line above: it loads dm_control.
 from sgfd_envs.registry import (
     BENCHMARK_IDS,
     CAUSAL_WORLD_IDS,

@@ -7,31 +7,35 @@ starts at a random index on reset and advances one frame per step, wrapping arou
   deterministic per seed, from disjoint train and test seed banks. Needs no download.
 - :class:`VideoBackground`: the first ``frame_budget`` frames of a video file, read with OpenCV
   (e.g. the Kinetics clips of DBC and AMBS).
-- :class:`ImageBackground`: one still image.
+- :class:`ImageBackground`: one still image (or a video stored as one image per frame).
 
-A user's folder (``background_dir``) either has ``train/`` and ``test/`` subfolders, one source per
-file, or is flat: its sorted files give the first four training sources and the rest the test ones.
+Which source is which domain of a split (the seed banks, a user's folder) is :mod:`sgfd_envs.background_splits`.
 """
 
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Protocol
 
 import cv2
 import numpy as np
 
-BACKGROUND_SPLITS = ("train", "test")
-# Disjoint seed banks: a test texture is never a training one.
-PROCEDURAL_SEEDS: dict[str, tuple[int, ...]] = {"train": (0, 1, 2, 3), "test": (1000, 1001, 1002, 1003)}
-# SGQN's overlay images (Places365 in its paper): a third bank, disjoint from the training and test backgrounds.
-OVERLAY_SEEDS = tuple(range(2000, 2032))
-TRAIN_SOURCES_IN_FLAT_FOLDER = 4
-DEFAULT_FRAME_BUDGET = 1000
+from sgfd_envs.background_splits import (
+    OVERLAY_SEEDS,
+    PROCEDURAL_SEEDS,
+    VIDEO_SUFFIXES,
+    background_files,
+    check_background_split,
+)
 
-VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp", ".tif", ".tiff")
+# Their home before they moved to the import-light module, kept.
+from sgfd_envs.background_splits import BACKGROUND_SPLITS as BACKGROUND_SPLITS  # isort: skip
+from sgfd_envs.background_splits import IMAGE_SUFFIXES as IMAGE_SUFFIXES  # isort: skip
+from sgfd_envs.background_splits import n_background_domains as n_background_domains  # isort: skip
+
+DEFAULT_FRAME_BUDGET = 1000
 
 
 class BackgroundSource(Protocol):
@@ -62,27 +66,54 @@ def composite(rendered: np.ndarray, coverage: np.ndarray, background: np.ndarray
     return np.minimum(blended, 255).astype(np.uint8)
 
 
-def fit_frame(frame_bgr: np.ndarray, height: int, width: int, grayscale: bool) -> np.ndarray:
-    """Centre-crop an OpenCV frame to the observation's aspect ratio, resize it, and make it RGB.
+def fit_frame(
+    frame_bgr: np.ndarray,
+    height: int,
+    width: int,
+    grayscale: bool = False,
+    *,
+    crop: bool = True,
+    interpolation: int = cv2.INTER_AREA,
+    halvings: int = 0,
+) -> np.ndarray:
+    """An OpenCV frame fitted to the observation: centre-cropped to its aspect ratio (or, with ``crop=False``, resized
+    whole, as the benchmarks resize their clips), resized, made RGB, and halved ``halvings`` times (:func:`halve`).
 
     :param frame_bgr: uint8 (h, w, 3) BGR frame as OpenCV reads it
     :param height: output height
     :param width: output width
     :param grayscale: replicate the luma into the three channels (as DBC does)
+    :param crop: centre-crop to the output's aspect ratio before resizing
+    :param interpolation: OpenCV interpolation of the resize
+    :param halvings: 2x2 averagings after the resize (a texture's mip level, see
+        :class:`sgfd_envs.benchmarks.scene.VideoTexture`)
     """
-    rows, cols = frame_bgr.shape[:2]
-    if cols * height > rows * width:
-        keep = max(1, round(rows * width / height))
-        start = (cols - keep) // 2
-        frame_bgr = frame_bgr[:, start : start + keep]
-    else:
-        keep = max(1, round(cols * height / width))
-        start = (rows - keep) // 2
-        frame_bgr = frame_bgr[start : start + keep]
-    resized = cv2.resize(frame_bgr, (width, height), interpolation=cv2.INTER_AREA)
+    if crop:
+        rows, cols = frame_bgr.shape[:2]
+        if cols * height > rows * width:
+            keep = max(1, round(rows * width / height))
+            start = (cols - keep) // 2
+            frame_bgr = frame_bgr[:, start : start + keep]
+        else:
+            keep = max(1, round(cols * height / width))
+            start = (rows - keep) // 2
+            frame_bgr = frame_bgr[start : start + keep]
+    resized = halve(cv2.resize(frame_bgr, (width, height), interpolation=interpolation), halvings)
     if grayscale:
         return np.repeat(cv2.cvtColor(resized, cv2.COLOR_BGR2GRAY)[..., np.newaxis], 3, axis=2)
     return cv2.cvtColor(resized, cv2.COLOR_BGR2RGB)
+
+
+def halve(image: np.ndarray, times: int = 1) -> np.ndarray:
+    """``image`` halved ``times`` times, each pixel the average of a 2x2 block (rounded), as a GPU makes a texture's
+    next mip level.
+
+    :param image: uint8 (H, W, C) image, H and W divisible by ``2 ** times``
+    :param times: how many halvings
+    """
+    for _ in range(times):
+        image = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    return image
 
 
 # --- built-in procedural source ------------------------------------------------------------------
@@ -196,34 +227,19 @@ def overlay_bank(height: int, width: int, n_images: int = len(OVERLAY_SEEDS)) ->
 # --- file sources ---------------------------------------------------------------------------------
 
 
-@functools.lru_cache(maxsize=32)
-def _decode_video(path: str, height: int, width: int, frame_budget: int, grayscale: bool) -> np.ndarray:
-    """Up to ``frame_budget`` fitted frames of a video, cached so envs sharing a source share memory."""
-    capture = cv2.VideoCapture(path)
-    frames: list[np.ndarray] = []
-    try:
-        while len(frames) < frame_budget:
-            ok, frame = capture.read()
-            if not ok:
-                break
-            frames.append(fit_frame(frame, height, width, grayscale))
-    finally:
-        capture.release()
-    if not frames:
-        raise ValueError(f"background_dir: OpenCV could not read any frame of the video {path!r}")
-    stacked = np.stack(frames)
-    stacked.flags.writeable = False
-    return stacked
-
-
 class VideoBackground:
-    """The first ``frame_budget`` frames of a video file, decoded on first use.
+    """The first ``frame_budget`` frames of a video file, each fitted by :func:`fit_frame`, decoded as they are first
+    needed (the first at construction, so an unreadable file fails where it is given).
 
     :param path: video file readable by ``cv2.VideoCapture``
     :param height: frame height
     :param width: frame width
-    :param frame_budget: most frames kept (DBC: 1000)
+    :param frame_budget: most frames kept (DBC: 1000), None for all
     :param grayscale: replicate the luma into the three channels (DBC's setting)
+    :param crop: centre-crop each frame to the output's aspect ratio (else resize it whole)
+    :param interpolation: OpenCV interpolation of the resize
+    :param halvings: 2x2 averagings after it (frames of ``height >> halvings`` by ``width >> halvings``)
+    :param argument: the keyword argument that gave the file, for messages
     """
 
     def __init__(
@@ -231,123 +247,110 @@ class VideoBackground:
         path: str | Path,
         height: int,
         width: int,
-        frame_budget: int = DEFAULT_FRAME_BUDGET,
+        frame_budget: int | None = DEFAULT_FRAME_BUDGET,
         grayscale: bool = False,
+        *,
+        crop: bool = True,
+        interpolation: int = cv2.INTER_AREA,
+        halvings: int = 0,
+        argument: str = "background_dir",
     ) -> None:
         self.path = str(path)
         self.height, self.width, self.frame_budget, self.grayscale = height, width, frame_budget, grayscale
-        self._check_readable()
+        self._fit = functools.partial(
+            fit_frame,
+            height=height,
+            width=width,
+            grayscale=grayscale,
+            crop=crop,
+            interpolation=interpolation,
+            halvings=halvings,
+        )
+        self._frames: list[np.ndarray] = []
+        self._capture: cv2.VideoCapture | None = cv2.VideoCapture(self.path)
+        self._decode_until(0)
+        if not self._frames:
+            raise ValueError(f"{argument}: OpenCV could not read any frame of the video {self.path!r}")
 
-    def _check_readable(self) -> None:
-        """Fail at construction, not at the first reset, if OpenCV cannot decode the file."""
-        capture = cv2.VideoCapture(self.path)
-        try:
-            readable = capture.isOpened() and capture.read()[0]
-        finally:
-            capture.release()
-        if not readable:
-            raise ValueError(f"background_dir: OpenCV could not read any frame of the video {self.path!r}")
-
-    @property
-    def _frames(self) -> np.ndarray:
-        return _decode_video(self.path, self.height, self.width, self.frame_budget, self.grayscale)
+    def _decode_until(self, index: int) -> None:
+        while self._capture is not None and len(self._frames) <= index:
+            ok, frame = self._capture.read()
+            if ok:
+                self._frames.append(self._fit(frame))
+            if not ok or len(self._frames) == self.frame_budget:
+                self._capture.release()
+                self._capture = None
 
     @property
     def n_frames(self) -> int:
+        self._decode_until(2**62)
         return len(self._frames)
 
     def frame(self, index: int) -> np.ndarray:
-        frames = self._frames
-        return frames[index % len(frames)]
+        self._decode_until(index)
+        if index >= len(self._frames):  # past the end: the video is decoded whole, and loops
+            index %= len(self._frames)
+        return self._frames[index]
 
 
 class ImageBackground:
-    """One still image as a one-frame source.
+    """Still images as frames, each fitted by :func:`fit_frame` and read as first needed (the first at construction):
+    one image (a one-frame source), or a video stored as one image file per frame (DAVIS).
 
-    :param path: image file readable by ``cv2.imread``
+    :param paths: an image file readable by ``cv2.imread``, or the frames' files in order
     :param height: frame height
     :param width: frame width
     :param grayscale: replicate the luma into the three channels
+    :param crop: centre-crop each image to the output's aspect ratio (else resize it whole)
+    :param interpolation: OpenCV interpolation of the resize
+    :param halvings: 2x2 averagings after it (frames of ``height >> halvings`` by ``width >> halvings``)
+    :param argument: the keyword argument that gave the files, for messages
     """
 
-    def __init__(self, path: str | Path, height: int, width: int, grayscale: bool = False) -> None:
-        self.path = str(path)
-        image = cv2.imread(self.path, cv2.IMREAD_COLOR)
-        if image is None:
-            raise ValueError(f"background_dir: OpenCV could not read the image {self.path!r}")
-        self._frame = fit_frame(image, height, width, grayscale)
-        self._frame.flags.writeable = False
+    def __init__(
+        self,
+        paths: str | Path | Sequence[str | Path],
+        height: int,
+        width: int,
+        grayscale: bool = False,
+        *,
+        crop: bool = True,
+        interpolation: int = cv2.INTER_AREA,
+        halvings: int = 0,
+        argument: str = "background_dir",
+    ) -> None:
+        self.paths = (Path(paths),) if isinstance(paths, (str, Path)) else tuple(Path(p) for p in paths)
+        self.height, self.width, self.grayscale = height, width, grayscale
+        self._fit = functools.partial(
+            fit_frame,
+            height=height,
+            width=width,
+            grayscale=grayscale,
+            crop=crop,
+            interpolation=interpolation,
+            halvings=halvings,
+        )
+        self._argument = argument
+        self._frames: dict[int, np.ndarray] = {}
+        self.frame(0)
 
     @property
     def n_frames(self) -> int:
-        return 1
+        return len(self.paths)
 
     def frame(self, index: int) -> np.ndarray:
-        return self._frame
+        index %= len(self.paths)
+        if index not in self._frames:
+            image = cv2.imread(str(self.paths[index]), cv2.IMREAD_COLOR)
+            if image is None:
+                raise ValueError(f"{self._argument}: OpenCV could not read the image {str(self.paths[index])!r}")
+            fitted = self._fit(image)
+            fitted.flags.writeable = False
+            self._frames[index] = fitted
+        return self._frames[index]
 
 
-# --- splits and domains ---------------------------------------------------------------------------
-
-
-def check_background_split(split: str) -> str:
-    """Return ``split`` if it is a background split, else raise.
-
-    :param split: ``"train"`` or ``"test"``
-    """
-    if split not in BACKGROUND_SPLITS:
-        raise ValueError(f"split must be one of {BACKGROUND_SPLITS} for background ids, got {split!r}")
-    return split
-
-
-def _media_files(folder: Path) -> tuple[Path, ...]:
-    return tuple(
-        sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES + IMAGE_SUFFIXES)
-    )
-
-
-def background_files(background_dir: str | Path) -> dict[str, tuple[Path, ...]]:
-    """The source files of each split in a user's folder.
-
-    :param background_dir: folder with ``train/`` and ``test/`` subfolders, or a flat folder of at
-        least five videos/images (the first four, sorted by name, are the training sources)
-    """
-    folder = Path(background_dir).expanduser()
-    if not folder.is_dir():
-        raise FileNotFoundError(f"background_dir {str(folder)!r} is not an existing folder")
-    suffixes = ", ".join(VIDEO_SUFFIXES + IMAGE_SUFFIXES)
-    subfolders = {split: folder / split for split in BACKGROUND_SPLITS}
-    present = [split for split, sub in subfolders.items() if sub.is_dir()]
-    if present:
-        if len(present) != len(BACKGROUND_SPLITS):
-            raise ValueError(
-                f"background_dir {str(folder)!r} has {present[0]}/ but no "
-                f"{({*BACKGROUND_SPLITS} - {*present}).pop()}/: give both or neither"
-            )
-        files = {split: _media_files(sub) for split, sub in subfolders.items()}
-        for split, found in files.items():
-            if not found:
-                raise ValueError(f"background_dir {str(subfolders[split])!r} holds no video or image ({suffixes})")
-        return files
-    found = _media_files(folder)
-    if len(found) <= TRAIN_SOURCES_IN_FLAT_FOLDER:
-        raise ValueError(
-            f"background_dir {str(folder)!r} holds {len(found)} videos/images ({suffixes}); a flat folder "
-            f"needs at least {TRAIN_SOURCES_IN_FLAT_FOLDER + 1} ({TRAIN_SOURCES_IN_FLAT_FOLDER} training, "
-            "the rest for testing), or use train/ and test/ subfolders"
-        )
-    return {"train": found[:TRAIN_SOURCES_IN_FLAT_FOLDER], "test": found[TRAIN_SOURCES_IN_FLAT_FOLDER:]}
-
-
-def n_background_domains(split: str, background_dir: str | Path | None = None) -> int:
-    """Number of background sources (domains) in a split.
-
-    :param split: ``"train"`` or ``"test"``
-    :param background_dir: a user's folder, or None for the built-in procedural banks
-    """
-    check_background_split(split)
-    if background_dir is None:
-        return len(PROCEDURAL_SEEDS[split])
-    return len(background_files(background_dir)[split])
+# --- the source of a domain ---------------------------------------------------------------------
 
 
 def make_background(

@@ -1,23 +1,26 @@
-"""The builders of every id (the entry point of ``gym.make``): they check the kwargs of the id's kind, say once per
-process when a built-in stand-in plays in place of a benchmark's data, and make the env."""
+"""The builders of every id, one per kind of id and each its ids' entry point (``gym.spec(id).entry_point``): they
+refuse by name the keyword arguments of another kind, check their own, say once per process when a built-in stand-in
+plays in place of a benchmark's data, and make the env."""
 
 from __future__ import annotations
 
+import functools
 import inspect
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar, cast
 
 import gymnasium as gym
 from dm_control.mujoco import Physics
 from dm_control.rl import control
+from gymnasium.envs.registration import load_env_creator
 
 from sgfd_envs import domains
 from sgfd_envs.backgrounds import DEFAULT_FRAME_BUDGET, check_background_split, make_background, n_background_domains
 from sgfd_envs.benchmarks import dcs, dmcgb, dmcgb2
 from sgfd_envs.benchmarks.media import check_data_dir, davis_folder
-from sgfd_envs.causal_world import CausalWorldEnv, make_causal_world_env
+from sgfd_envs.causal_world import CausalWorldEnv
 from sgfd_envs.dmc import Distraction, DMCEnv, DomainLabel, check_image_size
 from sgfd_envs.morphology import SETTINGS, check_domain, select_setting
 from sgfd_envs.registry import (
@@ -34,6 +37,32 @@ from sgfd_envs.registry import (
 )
 from sgfd_envs.rendering import check_render
 from sgfd_envs.wrappers import ObserveParameter, check_observe_parameter, scale_to_unit
+
+Builder = TypeVar("Builder", bound=Callable[..., gym.Env])
+
+
+def _keywords(builder: Callable[..., gym.Env]) -> tuple[str, ...]:
+    """The keyword arguments a builder takes besides the id."""
+    return tuple(name for name in inspect.signature(builder).parameters if name != "env_id")
+
+
+def refusing_other_kwargs(builder: Builder) -> Builder:
+    """``builder`` refusing, in one line, a keyword argument it does not take (a background id given ``setting=``, an
+    MT id given ``background_dir=``), naming the id's kind and the keyword arguments it takes, where Python would
+    raise a TypeError."""
+    takes = _keywords(builder)
+
+    @functools.wraps(builder)
+    def build(env_id: str, *args: Any, **kwargs: Any) -> gym.Env:
+        unknown = [name for name in kwargs if name not in takes]
+        if unknown:
+            kind = task_entry(env_id).variation.replace("_", " ")
+            raise ValueError(
+                f"{env_id} does not take {', '.join(map(repr, unknown))}: {kind} ids take {', '.join(takes)}"
+            )
+        return builder(env_id, *args, **kwargs)
+
+    return cast(Builder, build)
 
 
 class StandInWarning(UserWarning):
@@ -52,6 +81,7 @@ def _stand_in(env_id: str, split: str, **env_kwargs: Any) -> str | None:
     return what
 
 
+@refusing_other_kwargs
 def make_background_env(
     env_id: str,
     split: str = "train",
@@ -100,6 +130,7 @@ def make_background_env(
     )
 
 
+@refusing_other_kwargs
 def make_morphology_env(
     env_id: str,
     split: str | None = None,
@@ -226,6 +257,7 @@ def _dmcgb_family_distraction(
     return make_distraction
 
 
+@refusing_other_kwargs
 def make_dmcgb_env(
     env_id: str,
     split: str = "train",
@@ -265,6 +297,7 @@ def make_dmcgb_env(
     )
 
 
+@refusing_other_kwargs
 def make_dmcgb2_env(
     env_id: str,
     split: str = "train",
@@ -311,6 +344,7 @@ def make_dmcgb2_env(
     )  # fmt: skip
 
 
+@refusing_other_kwargs
 def make_dcs_env(
     env_id: str,
     split: str = "train",
@@ -365,40 +399,49 @@ def make_dcs_env(
     )  # fmt: skip
 
 
-BUILDERS: dict[str, Callable[..., gym.Env]] = {
-    BACKGROUND: make_background_env,
-    MORPHOLOGY: make_morphology_env,
-    CAUSAL_WORLD: make_causal_world_env,
-    DMCGB: make_dmcgb_env,
-    DMCGB2: make_dmcgb2_env,
-    DCS: make_dcs_env,
-}
+@refusing_other_kwargs
+def make_causal_world_env(
+    env_id: str,
+    split: str | None = None,
+    domain: int | None = None,
+    *,
+    setting: int | None = None,
+    split_settings: Mapping[str, Sequence[int]] | None = None,
+    obs_type: str = "state",
+    observe_parameter: bool = False,
+    skip_frame: int = 10,
+    render_mode: str | None = None,
+) -> gym.Env:
+    """A Causal World env (entry point of the ``SGFD/CW-`` ids; see :class:`sgfd_envs.causal_world.CausalWorldEnv`).
+
+    :param env_id: one of :data:`~sgfd_envs.registry.CAUSAL_WORLD_IDS`
+    :param split: ``"train"`` (default), ``"interpolation"`` or ``"extrapolation"``
+    :param domain: index of the setting within the split (default 0)
+    :param setting: the setting 1..10 itself instead of ``split``/``domain``
+    :param split_settings: replace the settings of some splits, e.g. ``{"train": (1, 2, 3, 4)}``
+    :param obs_type: only ``"state"``
+    :param observe_parameter: append the block property, scaled to [-1, 1] over the ten settings, to the state
+        (see :class:`sgfd_envs.wrappers.ObserveParameter`)
+    :param skip_frame: simulator steps of 4 ms per agent step (Causal World's default 10)
+    :param render_mode: None or ``"rgb_array"``
+    """
+    entry = entry_of_kind(env_id, CAUSAL_WORLD)
+    check_observe_parameter(observe_parameter, obs_type)
+    env = CausalWorldEnv(
+        entry.task, split, domain, setting=setting, split_settings=split_settings, obs_type=obs_type,
+        skip_frame=skip_frame, render_mode=render_mode,
+    )  # fmt: skip
+    if not observe_parameter:
+        return env
+    variation = env.variation
+    scaled = scale_to_unit(variation.value(env.setting), variation.value(SETTINGS[0]), variation.value(SETTINGS[-1]))
+    return ObserveParameter(env, scaled, variation.parameter)
 
 
 def env_kwargs_of(env_id: str) -> tuple[str, ...]:
-    """The keyword arguments ``gym.make`` takes for an id (those of its kind's builder).
+    """The keyword arguments ``gym.make`` takes for an id (those of its kind's builder, its entry point).
 
-    :param env_id: one of :data:`TASKS`
+    :param env_id: one of :data:`~sgfd_envs.registry.TASKS`
     """
-    builder = BUILDERS[task_entry(env_id).variation]
-    names: Mapping[str, inspect.Parameter] = inspect.signature(builder).parameters
-    if builder is make_causal_world_env:
-        names = {**names, **inspect.signature(CausalWorldEnv).parameters}
-    return tuple(name for name in names if name not in ("env_id", "task", "kwargs"))
-
-
-def make_env(env_id: str, **kwargs: Any) -> gym.Env:
-    """The entry point of every id: refuses, by name, keyword arguments of the other kind of id (a background
-    id given ``setting=``, an MT id given ``background_dir=``), then builds the env.
-
-    :param env_id: one of :data:`TASKS`
-    :param kwargs: the id's keyword arguments (:func:`env_kwargs_of`)
-    """
-    allowed = env_kwargs_of(env_id)
-    unknown = [name for name in kwargs if name not in allowed]
-    if unknown:
-        kind = task_entry(env_id).variation.replace("_", " ")
-        raise ValueError(
-            f"{env_id} does not take {', '.join(map(repr, unknown))}: {kind} ids take {', '.join(allowed)}"
-        )
-    return BUILDERS[task_entry(env_id).variation](env_id, **kwargs)
+    builder = load_env_creator(task_entry(env_id).entry_point)
+    return _keywords(cast(Callable[..., gym.Env], builder))

@@ -21,8 +21,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sgfd_envs.morphology import N_SETTINGS, SETTINGS, check_setting, select_setting
-from sgfd_envs.wrappers import ObserveParameter, check_observe_parameter, scale_to_unit
+from sgfd_envs.morphology import N_SETTINGS, check_setting, select_setting
 
 INSTALL_HINT = 'Causal World ids need the optional extra: pip install -e ".[causalworld]"'
 OBJECT = "tool_block"
@@ -235,29 +234,3 @@ class CausalWorldEnv(gym.Env[np.ndarray, np.ndarray]):
         if not self._closed:
             self._closed = True
             self._env.close()
-
-
-def make_causal_world_env(
-    env_id: str,
-    split: str | None = None,
-    domain: int | None = None,
-    *,
-    observe_parameter: bool = False,
-    **kwargs: Any,
-) -> gym.Env:
-    """Entry point of the Causal World ids (see :class:`CausalWorldEnv` for the kwargs).
-
-    :param env_id: ``SGFD/CW-<task>-v0``
-    :param split: a split of the MT ids
-    :param domain: index within the split
-    :param observe_parameter: append the block property, scaled to [-1, 1] over the ten settings, to the state
-        (see :class:`sgfd_envs.wrappers.ObserveParameter`)
-    """
-    check_observe_parameter(observe_parameter, kwargs.get("obs_type", "state"))
-    task = env_id.split("/CW-", 1)[-1].rsplit("-v", 1)[0]
-    env = CausalWorldEnv(task, split, domain, **kwargs)
-    if not observe_parameter:
-        return env
-    variation = env.variation
-    scaled = scale_to_unit(variation.value(env.setting), variation.value(SETTINGS[0]), variation.value(SETTINGS[-1]))
-    return ObserveParameter(env, scaled, variation.parameter)

@@ -222,6 +222,11 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._distraction
 
     @property
+    def renderer(self) -> CameraRenderer | None:
+        """The env's camera (None before its first frame); its ``uploads`` and ``readbacks`` count the transfers."""
+        return self._renderer
+
+    @property
     def physics(self) -> Physics:
         """The dm_control physics (read it; changing it mid-episode breaks reproducibility)."""
         return self._dm_env.physics

@@ -1,5 +1,11 @@
 """The table of every id (SGFD's and the benchmarks'), their splits, domains and evaluation modes, what stands in
-for a benchmark's data, and their registration with gymnasium (:mod:`sgfd_envs.builders` builds the envs)."""
+for a benchmark's data, and their registration with gymnasium, each id with its kind's builder as entry point
+(:mod:`sgfd_envs.builders`).
+
+Built from import-light facts (:mod:`sgfd_envs.morphology`, :mod:`sgfd_envs.background_splits`,
+:mod:`sgfd_envs.benchmarks.facts`): like gymnasium's own table, it loads no simulator, no OpenCV and no env code;
+those load when an env is made.
+"""
 
 from __future__ import annotations
 
@@ -9,8 +15,8 @@ from typing import Any
 
 import gymnasium as gym
 
-from sgfd_envs.backgrounds import BACKGROUND_SPLITS, n_background_domains
-from sgfd_envs.benchmarks import BENCHMARKS, dcs, dmcgb, dmcgb2
+from sgfd_envs.background_splits import BACKGROUND_SPLITS, n_background_domains
+from sgfd_envs.benchmarks import facts
 from sgfd_envs.morphology import MORPHOLOGY_SPLITS, split_settings_of
 
 BACKGROUND = "background"
@@ -18,24 +24,35 @@ MORPHOLOGY = "morphology"
 # Causal World (optional extra): an object property per domain, with the MT ids' settings and splits.
 CAUSAL_WORLD = "causal_world"
 # The benchmarks of the field (sgfd_envs.benchmarks): one domain per split, the split is the test mode.
-DMCGB, DMCGB2, DCS = dmcgb.NAME, dmcgb2.NAME, dcs.NAME
+DMCGB, DMCGB2, DCS = facts.DMCGB, facts.DMCGB2, facts.DCS
 BENCHMARK_KINDS = (DMCGB, DMCGB2, DCS)
+# Each benchmark's (domain, task) -> action repeat.
+BENCHMARK_TASKS = {DMCGB: facts.DMCGB_TASKS, DMCGB2: facts.DMCGB2_TASKS, DCS: facts.DCS_TASKS}
 # dm_control's episodes: 1000 simulator steps; gymnasium's TimeLimit ends them (agent steps = 1000 / repeat).
 EPISODE_CONTROL_STEPS = 1000
 SPLITS: dict[str, tuple[str, ...]] = {
     BACKGROUND: BACKGROUND_SPLITS,
     MORPHOLOGY: MORPHOLOGY_SPLITS,
     CAUSAL_WORLD: MORPHOLOGY_SPLITS,
-    DMCGB: dmcgb.MODES,
-    DMCGB2: dmcgb2.MODES,
-    DCS: dcs.SPLITS,
+    DMCGB: facts.DMCGB_MODES,
+    DMCGB2: facts.DMCGB2_MODES,
+    DCS: facts.DCS_SPLITS,
 }
 # Splits that take a parameter, so not in SPLITS (whose splits every periodic evaluation plays): per kind,
 # {split: (the kwarg that takes the parameter, its values)}. DMC-GB's distracting_cs (intensity=), which DMC-GB2
 # tests on too. evaluation_modes() lists them once per value.
 ParameterTable = dict[str, tuple[str, tuple[float, ...]]]
-_DISTRACTING_CS: ParameterTable = {dmcgb.DISTRACTING_CS: ("intensity", dmcgb.INTENSITIES)}
+_DISTRACTING_CS: ParameterTable = {facts.DISTRACTING_CS: ("intensity", facts.INTENSITIES)}
 PARAMETRIC_SPLITS: dict[str, ParameterTable] = {DMCGB: _DISTRACTING_CS, DMCGB2: _DISTRACTING_CS}
+# Each kind's builder in sgfd_envs.builders: its ids' entry point (imported by gym.make, not by gym.spec).
+BUILDERS = {
+    BACKGROUND: "make_background_env",
+    MORPHOLOGY: "make_morphology_env",
+    CAUSAL_WORLD: "make_causal_world_env",
+    DMCGB: "make_dmcgb_env",
+    DMCGB2: "make_dmcgb2_env",
+    DCS: "make_dcs_env",
+}
 
 
 @dataclass(frozen=True)
@@ -61,6 +78,11 @@ class TaskEntry:
             return None
         return math.ceil(EPISODE_CONTROL_STEPS / self.action_repeat)
 
+    @property
+    def entry_point(self) -> str:
+        """The builder of this kind of id, as gymnasium's ``module:function``."""
+        return f"sgfd_envs.builders:{BUILDERS[self.variation]}"
+
 
 def benchmark_id(benchmark: str, domain: str, task: str) -> str:
     """The id of a benchmark task: ``DMCGB/ball_in_cup-catch-v0``."""
@@ -83,8 +105,8 @@ TASKS: dict[str, TaskEntry] = {
     "SGFD/CW-pushing-v0": TaskEntry("trifinger", "pushing", CAUSAL_WORLD, action_repeat=1),
     **{
         benchmark_id(name, domain, task): TaskEntry(domain, task, name, action_repeat=repeat)
-        for name, module in BENCHMARKS.items()
-        for (domain, task), repeat in module.TASKS.items()
+        for name, tasks in BENCHMARK_TASKS.items()
+        for (domain, task), repeat in tasks.items()
     },
 }
 # The DeepMind Control benchmark of the paper's tables; the Causal World ids are its case studies.
@@ -201,23 +223,24 @@ def stand_in(env_id: str, split: str = "train", **env_kwargs: Any) -> str | None
         return _PAPER_BACKGROUNDS if env_kwargs.get("background_dir") is None else None
     if variation not in BENCHMARK_KINDS or split == "train":
         return None
-    if split == dmcgb.DISTRACTING_CS:
+    if split == facts.DISTRACTING_CS:
         return _DAVIS if env_kwargs.get("background_dir") is None else None
     if variation == DCS:
-        shows_videos = "background" in dcs.check_distractions(env_kwargs.get("distractions", dcs.DISTRACTIONS))
+        shows_videos = "background" in facts.check_distractions(env_kwargs.get("distractions", facts.DISTRACTIONS))
         return _DAVIS if shows_videos and env_kwargs.get("background_dir") is None else None
     uses_data = "color" in split or "video" in split
     return _DMCGB_DATA if uses_data and env_kwargs.get("data_dir") is None else None
 
 
 def register_envs() -> None:
-    """Register every id of :data:`TASKS` with gymnasium (idempotent); ``TimeLimit`` ends the episodes."""
+    """Register every id of :data:`TASKS` with gymnasium (idempotent), its kind's builder as entry point;
+    ``TimeLimit`` ends the episodes."""
     for env_id, entry in TASKS.items():
         if env_id in gym.registry:
             continue
         gym.register(
             env_id,
-            entry_point="sgfd_envs.builders:make_env",
+            entry_point=entry.entry_point,
             kwargs={"env_id": env_id},
             max_episode_steps=entry.max_episode_steps,
         )

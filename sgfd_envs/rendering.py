@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import mujoco
 import numpy as np
-from dm_control.mujoco import Physics, wrapper
+from dm_control.mujoco import Physics, engine
 
 RENDER_MODES = ("benchmark", "fast")
 # OpenGL's pixel formats, the values of mjrContext.readPixelFormat (which mjr_readPixels reads in).
@@ -49,8 +49,9 @@ def configure_offscreen_buffer(physics: Physics, size: int, render: str = "bench
     visual.global_.offheight = max(visual.global_.offheight, size)
 
 
-class CameraRenderer:
-    """Renders one fixed camera of a Physics into reused buffers.
+class CameraRenderer(engine.Camera):
+    """dm_control's camera of one fixed model camera, rendered again and again into its reused buffers, with a
+    pose set for one render, and the scene's coverage read with the colour when the backdrop is hidden.
 
     :param physics: the dm_control physics, set up by :func:`configure_offscreen_buffer` with the same ``render``
     :param size: image height and width in pixels
@@ -70,79 +71,57 @@ class CameraRenderer:
         if not 0 <= camera_id < model.ncam:
             raise ValueError(f"camera_id must be in 0..{model.ncam - 1} for this model, got {camera_id!r}")
         self.render_setting = check_render(render)
-        self._physics = physics
+        super().__init__(physics, height=size, width=size, camera_id=camera_id)
         self.camera_id = camera_id
         self.size = size
         self.hide_backdrop = bool(hide_backdrop)
-        self._scene = wrapper.MjvScene(model=model)
-        self._option = wrapper.MjvOption()
-        self._perturb = wrapper.MjvPerturb()
-        self._camera = wrapper.MjvCamera()
-        self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
-        self._camera.fixedcamid = camera_id
+        # Set on this camera's own scene once: set and restored around every render (dm_control's
+        # render_flag_overrides), they make each render measurably slower.
         if render == "fast":
-            self._scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
-            self._scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
+            self.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+            self.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
         if self.hide_backdrop:
             planes = model.geom_type == mujoco.mjtGeom.mjGEOM_PLANE
             if np.any(model.geom_group[~planes] == self._HIDDEN_GROUP):
                 raise RuntimeError(f"geom group {self._HIDDEN_GROUP} is in use; cannot hide the floor with it")
             model.geom_group[planes] = self._HIDDEN_GROUP
-            self._option.geomgroup[self._HIDDEN_GROUP] = 0
-            self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
-        self._rect = mujoco.MjrRect(0, 0, size, size)
-        # The last frame, bottom row first as OpenGL reads it: RGB, or RGBA when the coverage is read with it.
-        self._pixels = np.empty((size, size, 4 if self.hide_backdrop else 3), dtype=np.uint8)
-        contexts = physics.contexts
-        with contexts.gl.make_current() as ctx:
-            ctx.call(mujoco.mjr_setBuffer, mujoco.mjtFramebuffer.mjFB_OFFSCREEN, contexts.mujoco.ptr)
-
-    def _draw_and_read(self) -> None:
-        context = self._physics.contexts.mujoco.ptr
-        mujoco.mjr_render(self._rect, self._scene.ptr, context)
-        if not self.hide_backdrop:
-            mujoco.mjr_readPixels(self._pixels, None, self._rect, context)
-            return
-        # mjr_readPixels resolves the multisampled buffer and reads in the context's format: RGBA for this read
-        # only, since dm_control's physics.render shares the context and reads 3 bytes a pixel.
-        rgb_format = context.readPixelFormat
-        context.readPixelFormat = _GL_RGBA
-        try:
-            mujoco.mjr_readPixels(self._pixels, None, self._rect, context)
-        finally:
-            context.readPixelFormat = rgb_format
+            self.option.geomgroup[self._HIDDEN_GROUP] = 0
+            self.scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = 0
+            # dm_control's Camera reads the colour into this buffer; with the coverage it reads RGBA, in one read.
+            self._rgb_buffer = np.empty((size, size, 4), dtype=np.uint8)
+        # Textures sent to the GPU and frames read back since the camera was made (each a synchronous transfer).
+        self.uploads = 0
+        self.readbacks = 0
 
     def upload_texture(self, texture_id: int) -> None:
         """Send texture ``texture_id`` of the model (after its ``tex_data`` or size changed) to the GPU."""
         contexts = self._physics.contexts
         with contexts.gl.make_current() as ctx:
             ctx.call(mujoco.mjr_uploadTexture, self._physics.model.ptr, contexts.mujoco.ptr, texture_id)
+        self.uploads += 1
 
     def _draw(self, overrides: Sequence[tuple[np.ndarray, int, np.ndarray]]) -> np.ndarray:
-        """Render the current state into the reused buffer and return it, bottom row first."""
-        physics = self._physics
+        """dm_control's render of the current state with ``overrides`` set during it: a view of the reused buffer,
+        top row first (RGBA with the backdrop hidden)."""
+        context = self._physics.contexts.mujoco.ptr
+        rgb_format = context.readPixelFormat
         saved = [(array, row, array[row].copy()) for array, row, _ in overrides]
         try:
             for array, row, value in overrides:
                 array[row] = value
-            mujoco.mjv_updateScene(
-                physics.model.ptr,
-                physics.data.ptr,
-                self._option.ptr,
-                self._perturb.ptr,
-                self._camera.ptr,
-                mujoco.mjtCatBit.mjCAT_ALL,
-                self._scene.ptr,
-            )
+            if self.hide_backdrop:
+                # mjr_readPixels reads in the context's format: RGBA for this render only, since dm_control's
+                # physics.render shares the context and reads 3 bytes a pixel.
+                context.readPixelFormat = _GL_RGBA
+            self.readbacks += 1
+            return super().render()
         finally:
+            context.readPixelFormat = rgb_format
             for array, row, value in saved:
                 array[row] = value
-        with physics.contexts.gl.make_current() as ctx:
-            ctx.call(self._draw_and_read)
-        # OpenGL's first row is the bottom of the image.
-        return self._pixels[::-1]
 
-    def render(self, overrides: Sequence[tuple[np.ndarray, int, np.ndarray]] = ()) -> np.ndarray:
+    # Not dm_control's options (overlays, depth, segmentation): the pose of this render.
+    def render(self, overrides: Sequence[tuple[np.ndarray, int, np.ndarray]] = ()) -> np.ndarray:  # type: ignore[override]
         """Render the current state.
 
         :param overrides: ``(array, row, value)`` triples of ``physics.data`` arrays (a camera's

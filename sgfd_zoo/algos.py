@@ -5,7 +5,6 @@ No heavy import: reporting reads this table; the classes are imported when a key
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,7 +17,7 @@ class ZooAlgo:
     """
     An algorithm key of the zoo.
 
-    :param class_path: The SB3 algorithm, ``module:Class``
+    :param class_path: The SB3 algorithm, ``package:Class`` (the package sb3_sgfd or stable_baselines3)
     :param column: Its column name in the paper's tables
     :param hyperparams: The yaml file stem under sgfd_zoo/hyperparams it reads
     :param overrides: Hyperparameters set on top of that file (how the ablations differ from SGFD)
@@ -33,8 +32,12 @@ class ZooAlgo:
 
     @property
     def algo_class(self) -> type:
-        module, _, name = self.class_path.partition(":")
-        return getattr(importlib.import_module(module), name)
+        import stable_baselines3  # here: reading this table imports no agent
+
+        import sb3_sgfd
+
+        package, _, name = self.class_path.partition(":")
+        return getattr({"sb3_sgfd": sb3_sgfd, "stable_baselines3": stable_baselines3}[package], name)
 
 
 SGFD, SAC = "sb3_sgfd:SGFD_SAC", "stable_baselines3:SAC"

@@ -1,5 +1,5 @@
 """Callbacks the zoo adds to rl-zoo3's: evaluation on every split, a CSV of everything logged, and progress
-reports for the sweep's live view (checkpoints: :mod:`sgfd_zoo.checkpoint_callback`)."""
+reports for the sweep's live view (checkpoints: :mod:`sgfd_zoo.runs.checkpoint_callback`)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import CSVOutputFormat
 from stable_baselines3.common.vec_env import VecEnv
 
-from sgfd_zoo.files import UnreadableFile, atomic_write
+from sgfd_zoo.runs.files import UnreadableFile, atomic_write
 
 
 class MultiSplitEvalCallback(BaseCallback):

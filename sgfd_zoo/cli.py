@@ -1,49 +1,114 @@
 """
-The ``sgfd-zoo`` command: a dispatcher over the zoo's functions. Each command's module is imported only when
-it runs, so ``sgfd-zoo plot`` does not load rl-zoo3 or torch.
+The ``sgfd-zoo`` command: a dispatcher over the zoo's commands and the paper's figures. Each command imports its
+module when it runs, so ``sgfd-zoo plot`` does not load rl-zoo3 or torch.
+
+The dispatcher is the top floor: it is the one module of sgfd_zoo that imports sgfd_analysis, whose figures are
+drawn from the zoo's runs (``tests/project/test_layers.py`` holds the floors).
 """
 
 from __future__ import annotations
 
-import importlib
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from sgfd_zoo.exit_codes import INTERRUPTED
 
-# command -> (module:function, one-line description)
-COMMANDS: dict[str, tuple[str, str]] = {
-    "train": ("sgfd_zoo.training:train", "train an agent (rl-zoo3's flags, plus --quick, --resume, --no-progress)"),
-    "optimize": (
-        "sgfd_zoo.training:optimize",
-        "tune hyperparameters with Optuna (rl-zoo3's flags, --storage)",
-    ),
-    "enjoy": ("sgfd_zoo.training:enjoy", "watch or roll out a trained agent (rl-zoo3's flags)"),
-    "evaluate": (
-        "sgfd_zoo.evaluate:main",
-        "every trained model of a log folder on every split: tables, statistics",
-    ),
-    "plot": ("sgfd_zoo.plot:main", "learning curves per split and algorithm from a log folder"),
-    "quick": ("sgfd_zoo.quick:main", "the main job: SGFD and SAC briefly, on several seeds; tables with intervals"),
-    "sweep": (
-        "sgfd_zoo.sweep:main",
-        "algos x envs x seeds as Ray tasks (here or on a cluster), resumable; then evaluate",
-    ),
-    "study": ("sgfd_zoo.study:main", "a study from a spec file: its sweep, statistics and figures into studies/<name>"),
+Command = Callable[[list[str]], int]
+
+
+def _train(argv: list[str]) -> int:
+    from sgfd_zoo import training
+
+    return training.train(argv)
+
+
+def _optimize(argv: list[str]) -> int:
+    from sgfd_zoo import training
+
+    return training.optimize(argv)
+
+
+def _enjoy(argv: list[str]) -> int:
+    from sgfd_zoo import training
+
+    return training.enjoy(argv)
+
+
+def _evaluate(argv: list[str]) -> int:
+    from sgfd_zoo.report import evaluate
+
+    return evaluate.main(argv)
+
+
+def _plot(argv: list[str]) -> int:
+    from sgfd_zoo.report import plot
+
+    return plot.main(argv)
+
+
+def _quick(argv: list[str]) -> int:
+    from sgfd_zoo import quick
+
+    return quick.main(argv)
+
+
+def _sweep(argv: list[str]) -> int:
+    from sgfd_zoo.sweep import command
+
+    return command.main(argv)
+
+
+def _study(argv: list[str]) -> int:
+    from sgfd_zoo import study
+
+    return study.main(argv)
+
+
+def _correlation_study(argv: list[str]) -> int:
+    from sgfd_analysis import correlation
+
+    return correlation.main(argv)
+
+
+def _saliency_maps(argv: list[str]) -> int:
+    from sgfd_analysis import figures
+
+    return figures.saliency_maps_main(argv)
+
+
+def _weighted_samples(argv: list[str]) -> int:
+    from sgfd_analysis import figures
+
+    return figures.weighted_samples_main(argv)
+
+
+def _classifier_accuracy(argv: list[str]) -> int:
+    from sgfd_analysis import figures
+
+    return figures.classifier_accuracy_main(argv)
+
+
+# command -> (its function, one-line description)
+COMMANDS: dict[str, tuple[Command, str]] = {
+    "train": (_train, "train an agent (rl-zoo3's flags, plus --quick, --resume, --no-progress)"),
+    "optimize": (_optimize, "tune hyperparameters with Optuna (rl-zoo3's flags, --storage)"),
+    "enjoy": (_enjoy, "watch or roll out a trained agent (rl-zoo3's flags)"),
+    "evaluate": (_evaluate, "every trained model of a log folder on every split: tables, statistics"),
+    "plot": (_plot, "learning curves per split and algorithm from a log folder"),
+    "quick": (_quick, "the main job: SGFD and SAC briefly, on several seeds; tables with intervals"),
+    "sweep": (_sweep, "algos x envs x seeds as Ray tasks (here or on a cluster), resumable; then evaluate"),
+    "study": (_study, "a study from a spec file: its sweep, statistics and figures into studies/<name>"),
     "correlation-study": (
-        "sgfd_analysis.correlation:main",
+        _correlation_study,
         "|correlation| of the changed feature with the others: raw, global and SGFD weights",
     ),
     "saliency-maps": (
-        "sgfd_analysis.figures:saliency_maps_main",
+        _saliency_maps,
         "|d action / d pixel| of a trained pixel agent on training and test domains (PNG grid)",
     ),
-    "weighted-samples": (
-        "sgfd_analysis.figures:weighted_samples_main",
-        "a batch from two domains, frames sorted by SGFD's learned weight (PNG)",
-    ),
+    "weighted-samples": (_weighted_samples, "a batch from two domains, frames sorted by SGFD's learned weight (PNG)"),
     "classifier-accuracy": (
-        "sgfd_analysis.figures:classifier_accuracy_main",
+        _classifier_accuracy,
         "the domain classifier's accuracy during training, mean and band over seeds (PNG)",
     ),
 }
@@ -86,9 +151,8 @@ def run(command: str, argv: Sequence[str]) -> int:
     """Run ``command``'s function on ``argv``; a ZooError is printed as one line and gives its exit code."""
     from sgfd_zoo.arguments import ZooError  # here, not at the top: a Ctrl-C while it imports sgfd_envs is caught
 
-    module, _, function = COMMANDS[command][0].partition(":")
     try:
-        return getattr(importlib.import_module(module), function)(argv) or 0
+        return COMMANDS[command][0](list(argv)) or 0
     except ZooError as error:
         print(f"sgfd-zoo {command}: {error.label}: {error}", file=sys.stderr)
         return error.exit_code

@@ -21,17 +21,9 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv,
 import sgfd_envs
 from sb3_sgfd.common.validation import RefusedTransition
 from sgfd_envs.backgrounds import overlay_bank
-from sgfd_zoo import training_state
 from sgfd_zoo.algos import SGFD_ALGOS, classifier_start_warning, hyperparams_file, is_sgfd
 from sgfd_zoo.arguments import TrainingStopped, ZooError, train_command
 from sgfd_zoo.callbacks import CSVLogCallback, MultiSplitEvalCallback, ProgressCallback
-from sgfd_zoo.checkpoint_callback import (
-    ResumableCheckpointCallback,
-    StopRequest,
-    default_checkpoint_interval,
-    interrupts_deferred,
-)
-from sgfd_zoo.checkpoints import Checkpoint
 from sgfd_zoo.config_checks import (
     KWARGS_KEYS,
     check_algo_kwargs,
@@ -47,12 +39,20 @@ from sgfd_zoo.config_checks import (
     merged_env_kwargs,
     observes_pixels,
 )
-from sgfd_zoo.files import FileWriteError, atomic_write, write_failure
-from sgfd_zoo.locks import ClaimedRun, claim_new_run, claim_run
 from sgfd_zoo.registration import register_algorithms
-from sgfd_zoo.resuming import choose_checkpoint, load_checkpoint, prepare_restart, run_to_resume
-from sgfd_zoo.runs import RunFolder, mark_finished
-from sgfd_zoo.training_state import RestoreTrainingState
+from sgfd_zoo.runs import training_state
+from sgfd_zoo.runs.checkpoint_callback import (
+    ResumableCheckpointCallback,
+    StopRequest,
+    default_checkpoint_interval,
+    interrupts_deferred,
+)
+from sgfd_zoo.runs.checkpoints import Checkpoint
+from sgfd_zoo.runs.files import FileWriteError, atomic_write, write_failure
+from sgfd_zoo.runs.folders import RunFolder, mark_finished
+from sgfd_zoo.runs.locks import ClaimedRun, claim_new_run, claim_run
+from sgfd_zoo.runs.resuming import choose_checkpoint, load_checkpoint, prepare_restart, run_to_resume
+from sgfd_zoo.runs.training_state import RestoreTrainingState
 
 # Errors of a write that a full disk (or quota, or file size limit) causes.
 NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
@@ -67,9 +67,9 @@ class SGFDExperimentManager(ExperimentManager):
     - evaluation envs get the same env kwargs as training (rl-zoo3 drops yaml ``env_kwargs`` there),
       and evaluation covers every split: training domains and the unseen ones;
     - one run, one folder, one writer: a new run claims its folder before anything is built (runs started
-      together each get their own), and the run's lock is held while it trains (:mod:`sgfd_zoo.locks`);
+      together each get their own), and the run's lock is held while it trains (:mod:`sgfd_zoo.runs.locks`);
     - checkpoints (model + replay buffer) every ``save_freq`` steps, each file written whole and checked
-      (:class:`~sgfd_zoo.checkpoint_callback.ResumableCheckpointCallback`); ``resume=True`` continues the newest
+      (:class:`~sgfd_zoo.runs.checkpoint_callback.ResumableCheckpointCallback`); ``resume=True`` continues the newest
       run of this algo and env from its newest checkpoint that verifies, the one before when the newest does not;
     - Ctrl-C (or SIGTERM) stops training at a checkpoint and a full disk stops it cleanly: a
       :class:`TrainingStopped` says how to continue, and the run is not finished; the final model is followed by
@@ -330,7 +330,7 @@ class SGFDExperimentManager(ExperimentManager):
             self.claimed = None
 
     def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
-        """Written whole, instead of rl-zoo3's files: :meth:`sgfd_zoo.runs.RunFolder.record_start`."""
+        """Written whole, instead of rl-zoo3's files: :meth:`sgfd_zoo.runs.folders.RunFolder.record_start`."""
         args = OrderedDict([(key, vars(self.args)[key]) for key in sorted(vars(self.args))])
         start = 0 if self.checkpoint is None else self.checkpoint.num_timesteps
         RunFolder(Path(self.save_path)).record_start(saved_hyperparams, args, self.command, start)

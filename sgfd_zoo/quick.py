@@ -62,7 +62,7 @@ def scaled_classifier_start(algos: Sequence[str], env_id: str, n_timesteps: int)
 def check_run_lengths(folder: Path, algos: Sequence[str], env_id: str, n_timesteps: int) -> None:
     """A ZooError when ``folder`` holds runs of these algorithms on ``env_id`` of another length: the job keeps
     the runs it finds finished, and its tables would mix lengths."""
-    from sgfd_zoo.runs import find_runs
+    from sgfd_zoo.runs.folders import find_runs
 
     other = []
     for run in find_runs(folder, algos, [env_id], finished=False):
@@ -141,7 +141,9 @@ def main(argv: list[str]) -> int:
     if classifier_start is not None:
         train_args += ["--classifier-start", str(classifier_start)]
         print(f"quick: {n_timesteps} steps per run; SGFD's classifier starts at step {classifier_start}")
-    from sgfd_zoo import plot, sweep  # here: --help and a bad flag answer without loading the sweep
+    # here: --help and a bad flag answer without loading the sweep
+    from sgfd_zoo.report import plot
+    from sgfd_zoo.sweep import command as sweep
 
     status = sweep.main([*sweep_args, *train_args])
     if status == 0:

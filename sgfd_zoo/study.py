@@ -4,7 +4,7 @@
 It runs the spec's sweep (algorithms x envs x seeds with its training flags; resumable: run the same command
 again to continue), evaluates every run on every split, and writes the compact results next to the spec: a
 record of each finished run (``runs/``: its evaluations during training, logged SGFD figures and final
-evaluation; :class:`sgfd_zoo.records.RunRecord`), and, computed from all the records, the paper-style tables
+evaluation; :class:`sgfd_zoo.runs.records.RunRecord`), and, computed from all the records, the paper-style tables
 (``results.*``), the aggregate statistics (``scores.csv``, ``aggregate.*``), their figures and the diagnostics
 of SGFD's weights over training (``plots/``, ``diagnostics.md``), with the exact command and the package
 versions. Models, replay buffers and checkpoints stay in the log folder. A recorded cell is not trained again:
@@ -37,12 +37,14 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sgfd_zoo import evaluate, provenance, sweep
 from sgfd_zoo.algos import SGFD_ALGOS, algo_sort_key, column_name
 from sgfd_zoo.arguments import ZooError, check_at_least, checked_names
-from sgfd_zoo.records import RunRecord, find_records
-from sgfd_zoo.runs import RunFolder, env_name, find_runs
-from sgfd_zoo.statistics import write_statistics
+from sgfd_zoo.report import evaluate
+from sgfd_zoo.report.statistics import write_statistics
+from sgfd_zoo.runs import provenance
+from sgfd_zoo.runs.folders import RunFolder, env_name, find_runs
+from sgfd_zoo.runs.records import RunRecord, find_records
+from sgfd_zoo.sweep import command as sweep
 
 SPEC_KEYS = {"name", "description", "algos", "envs", "seeds", "train", "n_episodes", "reference"}
 TOP_SALIENCY = "sgfd/top_saliency_feature"  # the index of the most salient feature, per logged step
@@ -170,7 +172,7 @@ def diagnostics_figures(runs: Sequence[RunFolder | RunRecord], out: Path) -> lis
     (mean over seeds, and each seed faintly)."""
     from matplotlib.figure import Figure
 
-    from sgfd_zoo.plot import mean_and_band
+    from sgfd_zoo.report.plot import mean_and_band
 
     panels: tuple[tuple[str, str], ...] = (("sgfd/classifier_accuracy", "classifier accuracy"),)
     panels += (("sgfd/weight_ess", "weights' ESS / n"),)

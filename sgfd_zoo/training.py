@@ -194,7 +194,7 @@ def enjoy(argv: Sequence[str]) -> int:
 
     from sgfd_zoo.config_checks import first_line
     from sgfd_zoo.experiment import register_algorithms
-    from sgfd_zoo.runs import select_run
+    from sgfd_zoo.runs.folders import select_run
 
     register_algorithms()
     argv = list(argv)

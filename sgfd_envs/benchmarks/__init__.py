@@ -5,12 +5,6 @@
 - :mod:`~sgfd_envs.benchmarks.dcs`: the Distracting Control Suite (Stone et al. 2021), ``DCS/<task>-v0``.
 
 Each module holds its benchmark's facts (tasks, modes, action repeats, ranges) and a distraction class that
-:class:`~sgfd_envs.dmc.DMCEnv` applies to the picture only; :mod:`sgfd_envs.registry` registers the ids.
+:class:`~sgfd_envs.dmc.DMCEnv` applies to the picture only. The facts :mod:`sgfd_envs.registry` builds the ids from
+are in :mod:`~sgfd_envs.benchmarks.facts`, which loads no simulator; this package imports none of its modules.
 """
-
-from sgfd_envs.benchmarks import dcs, dmcgb, dmcgb2
-
-# Benchmark name (the id's prefix) -> its module.
-BENCHMARKS = {module.NAME: module for module in (dmcgb, dmcgb2, dcs)}
-
-__all__ = ["BENCHMARKS", "dcs", "dmcgb", "dmcgb2"]

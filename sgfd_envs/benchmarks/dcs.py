@@ -17,10 +17,12 @@ Facts taken from its code (``suite_utils.py``, ``background.py``, ``camera.py``,
 - Colour: every material's RGB is drawn uniformly within +-s of dm_control's (clipped to [0, 1]) each episode;
   dynamic adds Gaussian steps of std 0.03 s per simulator step, clipped to that range.
 
-The distractions draw from generators seeded with the env's seed (DCS leaves them unseeded). The video goes into
-DCS's 800 x 800 sky texture, each DAVIS frame resized whole (bilinear, as DCS's ``tf.image.resize``), sent to the
-GPU once per rendered frame that changed (DCS: every simulator step); frames are taken in file-name order. With
-``render="fast"`` the texture's side is ``min(800, 2 * image_size)`` and the resize averages (area).
+The distractions draw from generators seeded with the env's seed (DCS leaves them unseeded). Each DAVIS frame is
+resized whole to DCS's 800 x 800 sky texture (bilinear, as DCS's ``tf.image.resize``), then averaged down to the
+finest mip level the observation reads (400 x 400 at 84 px: :func:`sky_texture`), and sent to the GPU once per
+rendered frame that changed (DCS: every simulator step); frames are taken in file-name order. The walks move at
+every simulator step and touch the model only for a render (colours, camera pose, sky). With ``render="fast"``
+the resize is to ``min(800, 2 * image_size)`` by area.
 
 DMC-GB's ``distracting_cs`` mode (and DMC-GB2's DCS test) is this suite at another scale with other video counts,
 always dynamic, its walks moved every second simulator step (:data:`sgfd_envs.benchmarks.dmcgb.DISTRACTING_CS_VIDEOS`);
@@ -38,17 +40,17 @@ import cv2
 import mujoco
 import numpy as np
 from dm_control.mujoco import Physics
+from dm_control.utils import transformations
 
+from sgfd_envs.benchmarks import facts
 from sgfd_envs.benchmarks.media import ClipBank, davis_clips
-from sgfd_envs.benchmarks.scene import TextureSlot, object_id, rotation_x, rotation_z, video_texture
+from sgfd_envs.benchmarks.scene import TextureSlot, VideoTexture, video_texture
 from sgfd_envs.rendering import CameraRenderer
 
-NAME = "DCS"
-SPLITS = ("train", "easy", "medium", "hard")
-DIFFICULTY_SCALE = {"easy": 0.1, "medium": 0.2, "hard": 0.3}
-DIFFICULTY_VIDEOS = {"easy": 4, "medium": 8, "hard": None}
-DISTRACTIONS = ("background", "camera", "colour")
-VIDEO_SPLITS = ("train", "validation")
+# The facts the id table reads (benchmarks/facts.py, import-light), under this module's names.
+NAME, SPLITS, TASKS = facts.DCS, facts.DCS_SPLITS, facts.DCS_TASKS
+DIFFICULTY_SCALE, DIFFICULTY_VIDEOS, DIFFICULTIES = facts.DIFFICULTY_SCALE, facts.DIFFICULTY_VIDEOS, facts.DIFFICULTIES
+DISTRACTIONS, VIDEO_SPLITS, check_distractions = facts.DISTRACTIONS, facts.VIDEO_SPLITS, facts.check_distractions
 # The DAVIS 2017 video names of DCS's train and validation lists, in its order (the easy and medium
 # difficulties take the first 4 and 8).
 DAVIS_VIDEOS = {
@@ -69,44 +71,34 @@ DAVIS_VIDEOS = {
         "paragliding-launch", "parkour", "pigs", "scooter-black", "shooting", "soapbox",
     ),
 }  # fmt: skip
-# (domain, task) -> action repeat. DCS's code fixes none; these are PlaNet's per-task values, which pixel-based
-# agents (CURL, RAD, DrQ) use on these six tasks.
-TASKS: dict[tuple[str, str], int] = {
-    ("ball_in_cup", "catch"): 4,
-    ("cartpole", "swingup"): 8,
-    ("cheetah", "run"): 4,
-    ("finger", "spin"): 2,
-    ("reacher", "easy"): 4,
-    ("walker", "walk"): 2,
-}
-# DCS's difficulty -> (scale, videos of the list); None: all of them.
-DIFFICULTIES: dict[str, tuple[float, int | None]] = {
-    name: (DIFFICULTY_SCALE[name], DIFFICULTY_VIDEOS[name]) for name in DIFFICULTY_SCALE
-}
 GROUND_ALPHA = {"reacher": 0.0, "walker": 1.0, "cheetah": 1.0}
 DEFAULT_GROUND_ALPHA = 0.3
 SKY_TEXTURE_SIDE = 800
 # How DCS resizes a DAVIS frame to the sky texture (tf.image.resize, bilinear), in OpenCV.
 RESIZE = cv2.INTER_LINEAR
+# A sky texture of side S is minified at every pixel of an H px frame while S >= 3.24 H at dm_control's 45-degree
+# field of view (a pixel at the frame's corner spans the least angle, a texel at a face's centre the most); 4 H
+# leaves a margin. Halved that far, the texture gives the frame the 800 px sky's mip levels (see VideoTexture).
+SKY_TEXELS_PER_PIXEL = 4.0
 # Most environments start their camera 4 m away; the camera's velocities scale with start radius / 4.
 _REFERENCE_RADIUS = 4.0
 
 
+def sky_texture(image_size: int, render: str = "benchmark", interpolation: int = RESIZE) -> VideoTexture:
+    """How a video frame becomes the sky texture: resized whole to DCS's 800 x 800 with ``interpolation`` (with
+    ``render="fast"`` to twice the observation's side, by area), then halved to the finest mip level an
+    observation of ``image_size`` reads (400 at 84 px).
+
+    :param image_size: observation height and width
+    :param render: one of :data:`sgfd_envs.rendering.RENDER_MODES`
+    :param interpolation: OpenCV's closest to the benchmark's resize of a DAVIS frame
+    """
+    return video_texture(SKY_TEXTURE_SIDE, interpolation, image_size, render, SKY_TEXELS_PER_PIXEL)
+
+
 def sky_texture_side(image_size: int, render: str = "benchmark") -> int:
-    """Side of the sky texture the video is written to: DCS's 800, or with ``render="fast"`` twice the
-    observation's side (at most 800)."""
-    return video_texture(SKY_TEXTURE_SIDE, RESIZE, image_size, render)[0]
-
-
-def check_distractions(distractions: Sequence[str]) -> tuple[str, ...]:
-    """``distractions`` as a tuple if it is a non-empty subset of :data:`DISTRACTIONS`, else a ValueError."""
-    if isinstance(distractions, str):
-        distractions = (distractions,)
-    chosen = tuple(dict.fromkeys(distractions))
-    unknown = [d for d in chosen if d not in DISTRACTIONS]
-    if not chosen or unknown:
-        raise ValueError(f"distractions must be a non-empty subset of {DISTRACTIONS}, got {tuple(distractions)!r}")
-    return chosen
+    """Side of the sky texture the video is written to (:func:`sky_texture`)."""
+    return sky_texture(image_size, render).side
 
 
 # --- camera ----------------------------------------------------------------------------------------------
@@ -127,10 +119,10 @@ def to_cartesian(spherical: np.ndarray) -> np.ndarray:
 def look_at_without_roll(target: np.ndarray, position: np.ndarray) -> np.ndarray:
     """Camera orientation at ``position`` looking at ``target`` with a level horizon (yaw, then pitch)."""
     direction = (target - position) / np.linalg.norm(target - position)
-    yaw = np.degrees(np.arctan2(direction[0], direction[1]))
+    yaw = np.arctan2(direction[0], direction[1])
     # A camera with identity orientation looks down (-z); pitching it by 90 degrees makes it look level.
-    pitch = np.degrees(np.arctan2(direction[2], np.linalg.norm(direction[:2]))) + 90.0
-    return rotation_z(-yaw) @ rotation_x(pitch)
+    pitch = np.arctan2(direction[2], np.linalg.norm(direction[:2])) + np.pi / 2
+    return transformations.rotation_z_axis(-yaw) @ transformations.rotation_x_axis(pitch)
 
 
 def look_at_shortest_arc(target: np.ndarray, position: np.ndarray) -> np.ndarray:
@@ -245,7 +237,7 @@ class CameraWalk:
         else:
             target = self._initial_target
         look_at = look_at_without_roll if self.upper_quadrant else look_at_shortest_arc
-        return position, look_at(target, position) @ rotation_z(np.degrees(self.roll))
+        return position, look_at(target, position) @ transformations.rotation_z_axis(self.roll)
 
     def overrides(self) -> list:
         """Renderer overrides that put the camera at :meth:`pose` for one render."""
@@ -258,7 +250,8 @@ class CameraWalk:
 
 
 class ColourWalk:
-    """DCS's colour distraction: every material's RGB within +-scale of dm_control's.
+    """DCS's colour distraction: every material's RGB within +-scale of dm_control's. The walk moves its colours;
+    :meth:`show` puts them on the model, at a render only (a simulator step no frame shows sets none).
 
     :param physics: the env's physics
     :param scale: difficulty scale s
@@ -276,20 +269,21 @@ class ColourWalk:
 
     def start(self, rng: np.random.Generator) -> None:
         self.current = self.low + rng.random(self.low.shape) * (self.high - self.low)
-        self._model.mat_rgba[:, :3] = self.current
 
     def advance(self, rng: np.random.Generator) -> None:
         if self.step_std:
             step = rng.standard_normal(self.current.shape) * self.step_std
             self.current = np.clip(self.current + step, self.low, self.high)
-            self._model.mat_rgba[:, :3] = self.current
+
+    def show(self) -> None:
+        """Put the walk's colours on the model's materials, for the next render."""
+        self._model.mat_rgba[:, :3] = self.current
 
     def get_state(self) -> dict[str, np.ndarray]:
         return {"current": self.current.copy()}
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         self.current = np.array(state["current"])
-        self._model.mat_rgba[:, :3] = self.current
 
 
 # --- background ------------------------------------------------------------------------------------------
@@ -314,7 +308,7 @@ class SkyVideo:
         self.ground_alpha = ground_alpha
         self._side = texture_side
         self._sky = TextureSlot(physics, "skybox")
-        self._grid = object_id(physics, mujoco.mjtObj.mjOBJ_MATERIAL, "grid")
+        self._grid = physics.model.name2id("grid", "material")
         self.video_index = 0
         self.frames: list[int] = [0]
         self.position = 0
@@ -383,8 +377,8 @@ class DCSDistraction:
     :param camera_id: the rendered camera
     :param update_every: the walks move at every ``update_every``-th simulator step of an episode (DCS: 1,
         DMC-GB's ``distracting_cs``: 2)
-    :param render: ``"benchmark"`` (DCS's 800 x 800 sky texture, frames resized with ``interpolation``) or
-        ``"fast"`` (:func:`sky_texture_side`, area resize)
+    :param render: ``"benchmark"`` (frames resized to DCS's 800 x 800 with ``interpolation``) or ``"fast"`` (see
+        :func:`sky_texture`)
     :param interpolation: OpenCV interpolation closest to the benchmark's resize of a DAVIS frame
     """
 
@@ -417,10 +411,13 @@ class DCSDistraction:
         self.colour: ColourWalk | None = None
         if "background" in distractions:
             videos = DAVIS_VIDEOS[background_videos][:n_videos]
-            side, resize = video_texture(SKY_TEXTURE_SIDE, interpolation, image_size, render)
-            clips = davis_clips(videos, background_videos, side, background_dir, resize)
+            texture = sky_texture(image_size, render, interpolation)
+            clips = davis_clips(
+                videos, background_videos, texture.resize_side, background_dir, texture.interpolation,
+                texture.halvings,
+            )  # fmt: skip
             alpha = GROUND_ALPHA.get(domain, DEFAULT_GROUND_ALPHA)
-            self.background = SkyVideo(physics, clips, dynamic, alpha, side)
+            self.background = SkyVideo(physics, clips, dynamic, alpha, texture.side)
         if "camera" in distractions:
             self.camera = CameraWalk(physics, camera_id, scale, dynamic, upper_quadrant=domain != "reacher")
         if "colour" in distractions:
@@ -474,5 +471,7 @@ class DCSDistraction:
     def render(self, renderer: CameraRenderer, agent_step: int) -> np.ndarray:
         if self.background is not None:
             self.background.upload(renderer)
+        if self.colour is not None:
+            self.colour.show()
         overrides = self.camera.overrides() if self.camera is not None else []
         return renderer.render(overrides)

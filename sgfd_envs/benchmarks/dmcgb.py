@@ -27,36 +27,24 @@ Facts taken from its code:
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
 import cv2
-import mujoco
 import numpy as np
 from dm_control.mujoco import Physics
 
+from sgfd_envs.benchmarks import facts
 from sgfd_envs.benchmarks.dcs import DISTRACTIONS, DCSDistraction
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
-from sgfd_envs.benchmarks.scene import TextureSlot, object_id, rgb_attribute, suite_texture_data
+from sgfd_envs.benchmarks.scene import TextureSlot, rgb_attribute, suite_texture_data
 from sgfd_envs.rendering import CameraRenderer
 
-NAME = "DMCGB"
-DISTRACTING_CS = "distracting_cs"
-MODES = ("train", "color_easy", "color_hard", "video_easy", "video_hard")
-# distracting_cs: intensity -> how many of DAVIS's training videos the background draws from (None: all 60).
-DISTRACTING_CS_VIDEOS: dict[float, int | None] = {
-    0.025: 2, 0.05: 2, 0.1: 4, 0.15: 6, 0.2: 8, 0.3: None, 0.4: None, 0.5: None
-}  # fmt: skip
-INTENSITIES = tuple(DISTRACTING_CS_VIDEOS)
+# The facts the id table reads (benchmarks/facts.py, import-light), under this module's names.
+NAME, MODES, TASKS, DISTRACTING_CS = facts.DMCGB, facts.DMCGB_MODES, facts.DMCGB_TASKS, facts.DISTRACTING_CS
+DISTRACTING_CS_VIDEOS, INTENSITIES = facts.DISTRACTING_CS_VIDEOS, facts.INTENSITIES
 DISTRACTING_CS_UPDATE_EVERY = 2
-# (domain, task) -> action repeat, DMC-GB's defaults.
-TASKS: dict[tuple[str, str], int] = {
-    ("walker", "walk"): 4,
-    ("walker", "stand"): 4,
-    ("cartpole", "swingup"): 4,
-    ("ball_in_cup", "catch"): 4,
-    ("finger", "spin"): 2,
-}
 # DMC-GB's green screen: the colour of the sky (and floor) in its video modes, and the HSV box it keys out (hue in
 # degrees, saturation and value out of 255).
 GREEN_SCREEN_RGB = (0.2, 0.8, 0.2)
@@ -66,11 +54,31 @@ GREEN_SCREEN_HSV_HIGH = (185.0, 255.0, 255.0)
 
 def green_screen_mask(rgb: np.ndarray) -> np.ndarray:
     """Where DMC-GB's green screen keys a frame out: the pixels whose HSV colour (Python's ``colorsys``
-    convention) lies in :data:`GREEN_SCREEN_HSV_LOW` .. :data:`GREEN_SCREEN_HSV_HIGH`.
+    convention) lies in :data:`GREEN_SCREEN_HSV_LOW` .. :data:`GREEN_SCREEN_HSV_HIGH`. Each colour's verdict is
+    worked out once per process (:func:`_green_screen_rule`) and looked up after.
 
     :param rgb: uint8 (H, W, 3) frame
     :return: bool (H, W)
     """
+    red, green, blue = (rgb[..., channel].astype(np.int32) for channel in range(3))
+    code = (red << 16) | (green << 8) | blue
+    verdicts = _green_screen_verdicts()
+    known = verdicts[code]
+    if (known < 0).any():
+        new = np.unique(code[known < 0])
+        verdicts[new] = _green_screen_rule(np.stack([new >> 16, (new >> 8) & 255, new & 255], axis=-1))
+        known = verdicts[code]
+    return known == 1
+
+
+@functools.lru_cache(maxsize=1)
+def _green_screen_verdicts() -> np.ndarray:
+    """Every 24-bit colour's verdict, indexed by ``r << 16 | g << 8 | b``: 1 keyed, 0 not, -1 not seen yet (16 MB)."""
+    return np.full(2**24, -1, dtype=np.int8)
+
+
+def _green_screen_rule(rgb: np.ndarray) -> np.ndarray:
+    """DMC-GB's key of colours (..., 3) in 0..255: ``colorsys``'s HSV, in its floating-point steps, within the box."""
     channels = rgb.astype(np.float64) / 255.0
     red, green, blue = channels[..., 0], channels[..., 1], channels[..., 2]
     high, low = channels.max(axis=-1), channels.min(axis=-1)
@@ -160,7 +168,7 @@ class SceneColours:
     def __init__(self, physics: Physics, colours: list[dict[str, np.ndarray]]) -> None:
         self._physics = physics
         self.colours = colours
-        self._self_material = object_id(physics, mujoco.mjtObj.mjOBJ_MATERIAL, "self")
+        self._self_material = physics.model.name2id("self", "material")
         self._grid = TextureSlot(physics, "grid")
         self._sky = TextureSlot(physics, "skybox")
         self.current: dict[str, np.ndarray] | None = None

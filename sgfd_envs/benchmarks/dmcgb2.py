@@ -20,8 +20,9 @@ Facts taken from its code:
 - Action repeat 2 for every task, 84x84 frames, 100 test episodes at the end of training.
 
 The screen is a site with a cube texture whose faces all show the frame, as in DMC-GB2; MuJoCo draws it.
-The frame is resized (bicubic, as DMC-GB2's Pillow) to DMC-GB2's 256 x 256 texture; with ``render="fast"`` to
-a texture of side ``min(256, 2 * image_size)`` (area resize), faster to send to the GPU.
+The frame is resized (bicubic, as DMC-GB2's Pillow) to DMC-GB2's 256 x 256, then averaged down to the finest mip
+level the observation reads (128 x 128 at 84 px: :func:`projector_texture`); with ``render="fast"`` the resize is to
+``min(256, 2 * image_size)`` by area.
 """
 
 from __future__ import annotations
@@ -36,36 +37,21 @@ import mujoco
 import numpy as np
 from dm_control.mujoco import Physics
 from dm_control.rl import control
+from dm_control.utils import transformations
 
 from sgfd_envs import domains
+from sgfd_envs.benchmarks import facts
 from sgfd_envs.benchmarks.dmcgb import SceneColours
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
-from sgfd_envs.benchmarks.scene import (
-    TextureSlot,
-    camera_frame_override,
-    object_id,
-    rotation_x,
-    rotation_y,
-    rotation_z,
-    video_texture,
-)
-from sgfd_envs.morphology import find_child
+from sgfd_envs.benchmarks.scene import TextureSlot, VideoTexture, camera_frame_override, video_texture
+from sgfd_envs.domains.suite_xml import find_child
 from sgfd_envs.rendering import CameraRenderer
 
-NAME = "DMCGB2"
-GEOMETRIC_MODES = ("rotate_easy", "rotate_hard", "shift_easy", "shift_hard", "rotate_shift_easy", "rotate_shift_hard")
-PHOTOMETRIC_MODES = ("color_easy", "color_hard", "video_easy", "video_hard", "color_video_easy", "color_video_hard")
-MODES = ("train", *GEOMETRIC_MODES, *PHOTOMETRIC_MODES)
+# The facts the id table reads (benchmarks/facts.py, import-light), under this module's names.
+NAME, MODES, TASKS = facts.DMCGB2, facts.DMCGB2_MODES, facts.DMCGB2_TASKS
+GEOMETRIC_MODES, PHOTOMETRIC_MODES = facts.GEOMETRIC_MODES, facts.PHOTOMETRIC_MODES
 # How DMC-GB2's Pillow resizes a DAVIS frame or a clip frame (its default filter, bicubic), in OpenCV.
 RESIZE = cv2.INTER_CUBIC
-TASKS: dict[tuple[str, str], int] = {
-    ("walker", "walk"): 2,
-    ("walker", "stand"): 2,
-    ("cheetah", "run"): 2,
-    ("finger", "spin"): 2,
-    ("cartpole", "swingup"): 2,
-    ("ball_in_cup", "catch"): 2,
-}
 POSES = 100
 ROTATION_LIMIT = {"easy": 90.0, "hard": 180.0}
 # Degrees: (max a, min a, max b, min b) of the shift rectangle, hard; easy divides them by EASY_SHIFT_DIVISOR.
@@ -88,6 +74,9 @@ PROJECTORS = {
 # Walker and cheetah move: the screen's x and z follow the torso's subtree centre of mass, plus these offsets.
 PROJECTOR_FOLLOWS = {"walker": (0.0, -1.07), "cheetah": (-0.05, 0.15)}
 PROJECTOR_TEXTURE_SIDE = 256
+# The screen's texture is minified at every pixel of an H px frame while its side is at least this many H, in every
+# domain's view of its screen (at 84 px the 128 px texture gives the 256 px one's frame, the 64 px one does not).
+PROJECTOR_TEXELS_PER_PIXEL = 1.5
 _PROJECTOR = "video_screen"
 
 
@@ -117,10 +106,20 @@ def shift_angles(domain: str, difficulty: str) -> np.ndarray:
     return np.concatenate([corners[i] + steps * (corners[(i + 1) % 4] - corners[i]) for i in range(4)])
 
 
+def projector_texture(image_size: int, render: str = "benchmark") -> VideoTexture:
+    """How a clip frame becomes the screen's texture: resized whole (bicubic) to DMC-GB2's 256 x 256 (with
+    ``render="fast"`` to twice the observation's side, by area), then halved to the finest mip level an
+    observation of ``image_size`` reads (128 at 84 px).
+
+    :param image_size: observation height and width
+    :param render: one of :data:`sgfd_envs.rendering.RENDER_MODES`
+    """
+    return video_texture(PROJECTOR_TEXTURE_SIDE, RESIZE, image_size, render, PROJECTOR_TEXELS_PER_PIXEL)
+
+
 def projector_texture_side(image_size: int, render: str = "benchmark") -> int:
-    """Side of the screen's texture: DMC-GB2's 256, or with ``render="fast"`` twice the observation's side (at most
-    256)."""
-    return video_texture(PROJECTOR_TEXTURE_SIDE, RESIZE, image_size, render)[0]
+    """Side of the screen's texture (:func:`projector_texture`)."""
+    return projector_texture(image_size, render).side
 
 
 def load_with_projector(domain: str, task: str, texture_side: int) -> control.Environment:
@@ -186,20 +185,27 @@ class DMCGB2Distraction:
         self.mode = mode
         self._physics = physics
         self._domain = domain
-        self._rotations = [rotation_z(a) for a in rotation_angles(difficulty)] if "rotate" in parts else None
-        self._shifts = (
-            [rotation_y(a) @ rotation_x(b) for a, b in shift_angles(domain, difficulty)] if "shift" in parts else None
-        )
+        self._rotations = None
+        if "rotate" in parts:
+            self._rotations = [transformations.rotation_z_axis(np.radians(a)) for a in rotation_angles(difficulty)]
+        self._shifts = None
+        if "shift" in parts:
+            self._shifts = [
+                transformations.rotation_y_axis(np.radians(a)) @ transformations.rotation_x_axis(np.radians(b))
+                for a, b in shift_angles(domain, difficulty)
+            ]
         self._scene_colours = SceneColours(physics, colour_set(difficulty, data_dir)) if "color" in parts else None
         self._clips: ClipBank | None = None
         if "video" in parts:
-            side, resize = video_texture(PROJECTOR_TEXTURE_SIDE, RESIZE, image_size, render)
-            self._clips = dmcgb_clips(f"video_{difficulty}", side, data_dir, interpolation=resize)
+            texture = projector_texture(image_size, render)
+            self._clips = dmcgb_clips(
+                f"video_{difficulty}", texture.resize_side, data_dir, texture.interpolation, texture.halvings
+            )
             self._screen = TextureSlot(physics, _PROJECTOR)
-            self._screen_side = side
-            self._screen_site = object_id(physics, mujoco.mjtObj.mjOBJ_SITE, _PROJECTOR)
+            self._screen_side = texture.side
+            self._screen_site = physics.model.name2id(_PROJECTOR, "site")
             if mode == "video_hard":
-                physics.model.mat_rgba[object_id(physics, mujoco.mjtObj.mjOBJ_MATERIAL, "grid"), 3] = 0.0
+                physics.model.mat_rgba[physics.model.name2id("grid", "material"), 3] = 0.0
         self._order = np.arange(POSES)
         self._start = 0
         self._episodes_since_seed = 0
@@ -264,7 +270,7 @@ class DMCGB2Distraction:
         position = data.site_xpos[self._screen_site].copy()
         follow = PROJECTOR_FOLLOWS.get(self._domain)
         if follow is not None:
-            torso = data.subtree_com[object_id(self._physics, mujoco.mjtObj.mjOBJ_BODY, "torso")]
+            torso = data.subtree_com[self._physics.model.name2id("torso", "body")]
             position[0] = torso[0] + follow[0]
             position[2] = torso[2] + follow[1]
         return position

@@ -24,7 +24,13 @@ import cv2
 import numpy as np
 from dm_control.suite import common
 
-from sgfd_envs.backgrounds import IMAGE_SUFFIXES, BackgroundSource, ProceduralBackground
+from sgfd_envs.background_splits import IMAGE_SUFFIXES
+from sgfd_envs.backgrounds import (
+    BackgroundSource,
+    ImageBackground,
+    ProceduralBackground,
+    VideoBackground,
+)
 from sgfd_envs.benchmarks.scene import suite_texture_attributes
 
 COLOUR_KEYS = ("grid_rgb1", "grid_rgb2", "self_rgb", "skybox_rgb")
@@ -179,80 +185,6 @@ def check_data_dir(data_dir: str | Path) -> Path:
 # --- clips -----------------------------------------------------------------------------------------------
 
 
-class VideoClip:
-    """A video file's frames, each resized whole (no crop) to size x size, decoded as they are first needed.
-
-    :param path: a video OpenCV can read
-    :param size: frame height and width
-    :param interpolation: OpenCV interpolation of the resize (DMC-GB: bilinear)
-    """
-
-    def __init__(self, path: str | Path, size: int, interpolation: int = cv2.INTER_LINEAR) -> None:
-        self.path = str(path)
-        self.size = size
-        self._interpolation = interpolation
-        self._frames: list[np.ndarray] = []
-        self._capture: cv2.VideoCapture | None = None
-        self._exhausted = False
-
-    def _decode_until(self, index: int) -> None:
-        while len(self._frames) <= index and not self._exhausted:
-            if self._capture is None:
-                self._capture = cv2.VideoCapture(self.path)
-            ok, frame = self._capture.read()
-            if not ok:
-                self._exhausted = True
-                self._capture.release()
-                break
-            resized = cv2.resize(frame, (self.size, self.size), interpolation=self._interpolation)
-            self._frames.append(cv2.cvtColor(resized, cv2.COLOR_BGR2RGB))
-        if not self._frames:
-            raise ValueError(f"data_dir: OpenCV could not read any frame of the video {self.path!r}")
-
-    @property
-    def n_frames(self) -> int:
-        self._decode_until(2**62)
-        return len(self._frames)
-
-    def frame(self, index: int) -> np.ndarray:
-        self._decode_until(index)
-        if index >= len(self._frames):
-            index %= len(self._frames)
-        return self._frames[index]
-
-
-class ImageFolderClip:
-    """A folder of frames (DAVIS: ``00000.jpg``, ...) in name order, each resized whole to size x size.
-
-    :param folder: the video's folder
-    :param size: frame height and width
-    :param interpolation: OpenCV interpolation of the resize
-    """
-
-    def __init__(self, folder: str | Path, size: int, interpolation: int = cv2.INTER_AREA) -> None:
-        self.folder = Path(folder)
-        self.size = size
-        self._interpolation = interpolation
-        self._files = sorted(p for p in self.folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-        if not self._files:
-            raise ValueError(f"background_dir: the video folder {str(self.folder)!r} holds no image")
-        self._cache: dict[int, np.ndarray] = {}
-
-    @property
-    def n_frames(self) -> int:
-        return len(self._files)
-
-    def frame(self, index: int) -> np.ndarray:
-        index %= len(self._files)
-        if index not in self._cache:
-            image = cv2.imread(str(self._files[index]), cv2.IMREAD_COLOR)
-            if image is None:
-                raise ValueError(f"background_dir: OpenCV could not read the image {str(self._files[index])!r}")
-            resized = cv2.resize(image, (self.size, self.size), interpolation=self._interpolation)
-            self._cache[index] = cv2.cvtColor(resized, cv2.COLOR_BGR2RGB)
-        return self._cache[index]
-
-
 class ResizedSource:
     """A source's frames resized (bilinear) to size x size, each once.
 
@@ -307,20 +239,23 @@ class ClipBank:
         return self._clip
 
 
-def dmcgb_clips(mode: str, size: int, data_dir: str | Path | None, interpolation: int = cv2.INTER_LINEAR) -> ClipBank:
+def dmcgb_clips(
+    mode: str, size: int, data_dir: str | Path | None, interpolation: int = cv2.INTER_LINEAR, halvings: int = 0
+) -> ClipBank:
     """DMC-GB's clips of ``video_easy`` (10) or ``video_hard`` (100), from ``data_dir`` or procedural.
 
     :param mode: ``"video_easy"`` or ``"video_hard"``
-    :param size: frame height and width
+    :param size: the side each frame is resized to
     :param data_dir: DMC-GB's data folder, or None for the stand-ins
     :param interpolation: OpenCV interpolation of the resize
+    :param halvings: 2x2 averagings after it (frames of side ``size >> halvings``; the stand-ins are drawn so)
     """
     count = DMCGB_CLIP_COUNTS[mode]
     if data_dir is None:
         seeds = [DMCGB_CLIP_SEEDS[mode] + i for i in range(count)]
         return ClipBank(
             [f"procedural {seed}" for seed in seeds],
-            lambda i: procedural_clip(seeds[i], size, DMCGB_CLIP_FRAMES[mode]),
+            lambda i: procedural_clip(seeds[i], size >> halvings, DMCGB_CLIP_FRAMES[mode]),
         )
     folder = check_data_dir(data_dir) / mode
     paths = [folder / f"video{i}.mp4" for i in range(count)]
@@ -330,7 +265,13 @@ def dmcgb_clips(mode: str, size: int, data_dir: str | Path | None, interpolation
             f"data_dir: {str(folder)!r} lacks {len(missing)} of DMC-GB's {count} clips ({', '.join(missing[:5])}"
             f"{', ...' if len(missing) > 5 else ''})"
         )
-    return ClipBank([str(p) for p in paths], lambda i: VideoClip(paths[i], size, interpolation))
+
+    def open_clip(i: int) -> BackgroundSource:
+        return VideoBackground(
+            paths[i], size, size, None, crop=False, interpolation=interpolation, halvings=halvings, argument="data_dir"
+        )
+
+    return ClipBank([str(p) for p in paths], open_clip)
 
 
 def davis_clips(
@@ -339,21 +280,23 @@ def davis_clips(
     size: int,
     background_dir: str | Path | None,
     interpolation: int = cv2.INTER_AREA,
+    halvings: int = 0,
 ) -> ClipBank:
     """DAVIS videos by name (the Distracting Control Suite's lists), from ``background_dir`` or procedural.
 
     :param videos: the video names, in order
     :param split: ``"train"`` or ``"validation"`` (picks the stand-ins' seed bank)
-    :param size: frame height and width
+    :param size: the side each frame is resized to
     :param background_dir: DAVIS's ``JPEGImages/480p`` folder (or the DAVIS folder above it), or None
     :param interpolation: OpenCV interpolation of the resize of DAVIS's frames
+    :param halvings: 2x2 averagings after it (frames of side ``size >> halvings``; the stand-ins are drawn so)
     """
     if background_dir is None:
         seeds = [DAVIS_SEEDS[split] + i for i in range(len(videos))]
 
         def procedural(i: int) -> BackgroundSource:
             length = int(np.random.default_rng(seeds[i]).integers(DAVIS_FRAMES_RANGE[0], DAVIS_FRAMES_RANGE[1] + 1))
-            return procedural_clip(seeds[i], size, length)
+            return procedural_clip(seeds[i], size >> halvings, length)
 
         return ClipBank([f"procedural {seed}" for seed in seeds], procedural)
     folder = davis_folder(background_dir)
@@ -363,7 +306,21 @@ def davis_clips(
             f"background_dir: {str(folder)!r} lacks {len(missing)} of the {len(videos)} DAVIS {split} videos this "
             f"split uses ({', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''})"
         )
-    return ClipBank(list(videos), lambda i: ImageFolderClip(folder / videos[i], size, interpolation))
+    return ClipBank(list(videos), lambda i: davis_video(folder / videos[i], size, interpolation, halvings))
+
+
+def davis_video(folder: Path, size: int, interpolation: int, halvings: int = 0) -> BackgroundSource:
+    """A DAVIS video: its folder's images in name order (``00000.jpg``, ...), each resized whole to size x size.
+
+    :param folder: the video's folder
+    :param size: the side each frame is resized to
+    :param interpolation: OpenCV interpolation of the resize
+    :param halvings: 2x2 averagings after it
+    """
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise ValueError(f"background_dir: the video folder {str(folder)!r} holds no image")
+    return ImageBackground(files, size, size, crop=False, interpolation=interpolation, halvings=halvings)
 
 
 def davis_folder(background_dir: str | Path) -> Path:

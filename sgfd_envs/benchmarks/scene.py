@@ -1,5 +1,5 @@
-"""What the benchmarks change in a dm_control scene, without touching its physics: named ids, material colours,
-textures rebuilt or replaced and sent to the GPU, rotations of a camera's frame.
+"""What the benchmarks change in a dm_control scene, without touching its physics: material colours, textures
+rebuilt or replaced and sent to the GPU, rotations of a camera's frame.
 
 Every edit here writes visual fields of the model (``mat_rgba``, ``tex_data``, ``tex_width``/``tex_height``) or a
 pose the renderer uses for one render; none of them enters MuJoCo's dynamics.
@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import cv2
 import mujoco
@@ -21,19 +22,6 @@ from sgfd_envs.rendering import CameraRenderer, check_render
 
 # dm_control's shared assets: the skybox texture is in skybox.xml, the floor's grid texture in materials.xml.
 _ASSET_OF_TEXTURE = {"skybox": "./common/skybox.xml", "grid": "./common/materials.xml"}
-
-
-def object_id(physics: Physics, kind: mujoco.mjtObj, name: str) -> int:
-    """The index of a named model object, or a ValueError naming it.
-
-    :param physics: the physics whose model holds it
-    :param kind: e.g. ``mujoco.mjtObj.mjOBJ_TEXTURE``
-    :param name: its name in the XML
-    """
-    index = mujoco.mj_name2id(physics.model.ptr, kind, name)
-    if index < 0:
-        raise ValueError(f"this model has no {kind.name.removeprefix('mjOBJ_').lower()} named {name!r}")
-    return index
 
 
 def suite_texture_attributes(name: str) -> dict[str, str]:
@@ -80,20 +68,52 @@ def suite_texture_data(name: str, **changes: str) -> np.ndarray:
     return _compiled_texture(tuple(sorted(attributes.items())))
 
 
-def video_texture(benchmark_side: int, benchmark_resize: int, image_size: int, render: str) -> tuple[int, int]:
-    """The side of the square texture a benchmark writes video frames into, and the OpenCV interpolation that
-    resizes the frames to it: the benchmark's own with ``render="benchmark"``; with ``"fast"`` twice the
-    observation's side (never more than the benchmark's), resized by pixel area.
+@dataclass(frozen=True)
+class VideoTexture:
+    """How a video frame becomes the square texture a benchmark shows it on: resized whole to ``resize_side`` with
+    ``interpolation``, then averaged over 2x2 blocks ``halvings`` times. The averaging makes the texture's mip
+    level 0 the finest level a frame of the observation's size reads: MuJoCo draws textures mipmapped, so the finer
+    levels are never read, and neither made nor sent to the GPU (an 800 px sky seen at 84 px is read at level 1
+    and coarser).
+
+    :param resize_side: side the frame is resized to
+    :param interpolation: OpenCV interpolation of that resize
+    :param halvings: 2x2 averagings after it
+    """
+
+    resize_side: int
+    interpolation: int
+    halvings: int = 0
+
+    @property
+    def side(self) -> int:
+        """The texture's side."""
+        return self.resize_side >> self.halvings
+
+
+def video_texture(
+    benchmark_side: int, benchmark_resize: int, image_size: int, render: str, texels_per_pixel: float
+) -> VideoTexture:
+    """The texture a benchmark's video frames go into: resized as the benchmark resizes them to its side with
+    ``render="benchmark"``, with ``"fast"`` to twice the observation's side (at most the benchmark's) by pixel
+    area; then halved while the halved texture is still minified at every pixel of a frame (its side at least
+    ``texels_per_pixel`` observation sides): such a frame blends the same two mip levels as from the full texture.
 
     :param benchmark_side: the benchmark's texture side
     :param benchmark_resize: OpenCV's interpolation closest to the benchmark's resize
     :param image_size: the observation's height and width
     :param render: one of :data:`sgfd_envs.rendering.RENDER_MODES`
-    :return: ``(side, interpolation)``
+    :param texels_per_pixel: the least side, in observation sides, at which every pixel of a frame minifies the
+        texture (a property of where it is drawn and of the camera's field of view)
     """
     if check_render(render) == "benchmark":
-        return benchmark_side, benchmark_resize
-    return min(benchmark_side, 2 * image_size), cv2.INTER_AREA
+        side, interpolation = benchmark_side, benchmark_resize
+    else:
+        side, interpolation = min(benchmark_side, 2 * image_size), cv2.INTER_AREA
+    halvings = 0
+    while side % 2 ** (halvings + 1) == 0 and side >> (halvings + 1) >= texels_per_pixel * image_size:
+        halvings += 1
+    return VideoTexture(side, interpolation, halvings)
 
 
 class TextureSlot:
@@ -106,7 +126,7 @@ class TextureSlot:
 
     def __init__(self, physics: Physics, name: str) -> None:
         self._model = physics.model
-        self.texture_id = object_id(physics, mujoco.mjtObj.mjOBJ_TEXTURE, name)
+        self.texture_id = physics.model.name2id(name, "texture")
         self._address = int(self._model.tex_adr[self.texture_id])
         height, width = int(self._model.tex_height[self.texture_id]), int(self._model.tex_width[self.texture_id])
         self.original_shape = (height, width)
@@ -136,24 +156,6 @@ class TextureSlot:
         if self._stale:
             renderer.upload_texture(self.texture_id)
             self._stale = False
-
-
-def rotation_x(degrees: float) -> np.ndarray:
-    """3x3 rotation about x by ``degrees``."""
-    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def rotation_y(degrees: float) -> np.ndarray:
-    """3x3 rotation about y by ``degrees``."""
-    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def rotation_z(degrees: float) -> np.ndarray:
-    """3x3 rotation about z by ``degrees``."""
-    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def camera_frame_override(physics: Physics, camera_id: int, rotation: np.ndarray) -> list:

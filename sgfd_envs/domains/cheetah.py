@@ -9,15 +9,8 @@ from dm_control.rl import control
 from dm_control.suite import cheetah as dm_cheetah
 from dm_control.suite import common
 
-from sgfd_envs.morphology import (
-    Morphology,
-    find_child,
-    find_named,
-    get_floats,
-    read_suite_model,
-    set_floats,
-    to_xml_string,
-)
+from sgfd_envs.domains.suite_xml import find_child, find_named, get_floats, read_suite_model, set_floats, to_xml_string
+from sgfd_envs.morphology import Morphology
 
 # dm_control's cheetah has no control_timestep: one agent action per 0.01 s physics step.
 CONTROL_TIMESTEP = 0.01

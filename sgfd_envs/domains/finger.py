@@ -6,15 +6,8 @@ from dm_control.rl import control
 from dm_control.suite import common
 from dm_control.suite import finger as dm_finger
 
-from sgfd_envs.morphology import (
-    SETTINGS,
-    Morphology,
-    find_named,
-    get_floats,
-    read_suite_model,
-    set_floats,
-    to_xml_string,
-)
+from sgfd_envs.domains.suite_xml import find_named, get_floats, read_suite_model, set_floats, to_xml_string
+from sgfd_envs.morphology import SETTINGS, Morphology
 
 CONTROL_TIMESTEP = 0.02
 # dm_control's easy target radius (0.07); "turn" is turn_easy, as in the pixel benchmarks.

@@ -7,7 +7,8 @@ from dm_control.suite import common
 from dm_control.suite import walker as dm_walker
 from dm_control.utils import rewards
 
-from sgfd_envs.morphology import Morphology, find_named, get_floats, read_suite_model, set_floats, to_xml_string
+from sgfd_envs.domains.suite_xml import find_named, get_floats, read_suite_model, set_floats, to_xml_string
+from sgfd_envs.morphology import Morphology
 
 CONTROL_TIMESTEP = 0.025
 MOVE_SPEEDS = {"walk": 1.0, "run": 8.0}

@@ -9,6 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from sgfd_envs.backgrounds import halve
 from sgfd_envs.benchmarks import dcs
 from sgfd_envs.benchmarks.dcs import DAVIS_VIDEOS, DIFFICULTY_SCALE, to_spherical
 from sgfd_envs.benchmarks.media import davis_clips
@@ -86,13 +87,13 @@ def test_colours_stay_within_scale_of_dm_controls(dynamic):
     with gym.make(
         "DCS/finger-spin-v0", split="medium", dynamic=dynamic, distractions=("colour",), obs_type="state"
     ) as env:
-        original = env.unwrapped.distraction.colour.original.copy()
-        model = env.unwrapped.physics.model
+        colour = env.unwrapped.distraction.colour
+        original = colour.original.copy()
         seen = []
         for episode in range(2):
             env.reset(seed=0 if episode == 0 else None)
             for _ in range(4):
-                rgb = model.mat_rgba[:, :3].copy()
+                rgb = colour.current.copy()
                 assert np.all(rgb >= np.clip(original - scale, 0, 1) - 1e-12)
                 assert np.all(rgb <= np.clip(original + scale, 0, 1) + 1e-12)
                 seen.append(rgb)
@@ -110,8 +111,9 @@ def sky_bytes(physics, side):
 
 @pytest.mark.parametrize("dynamic", [False, True])
 def test_the_sky_shows_a_frame_of_the_difficultys_videos(dynamic):
-    side = dcs.sky_texture_side(SIZE)
-    clips = davis_clips(DAVIS_VIDEOS["train"][:4], "train", side, None)
+    texture = dcs.sky_texture(SIZE)
+    side = texture.side
+    clips = davis_clips(DAVIS_VIDEOS["train"][:4], "train", texture.resize_side, None, halvings=texture.halvings)
     with gym.make(
         "DCS/cartpole-swingup-v0", split="easy", dynamic=dynamic, distractions=("background",), image_size=SIZE
     ) as env:
@@ -183,7 +185,8 @@ def davis(tmp_path):
 
 
 def test_davis_frames_are_read_from_the_folder_and_resized_whole(davis):
-    side = dcs.sky_texture_side(SIZE)
+    texture = dcs.sky_texture(SIZE)
+    side = texture.side
     folder = davis / "JPEGImages" / "480p"
     with gym.make(
         "DCS/finger-spin-v0", split="hard", background_dir=davis, background_videos="validation", image_size=SIZE
@@ -192,8 +195,10 @@ def test_davis_frames_are_read_from_the_folder_and_resized_whole(davis):
         background = env.unwrapped.distraction.background
         name = DAVIS_VIDEOS["validation"][background.video_index]
         image = cv2.imread(str(folder / name / f"{background.frame_index:05d}.jpg"))
-        # DCS's 800 x 800 sky, the frame resized bilinearly as its tf.image.resize does.
-        expected = cv2.cvtColor(cv2.resize(image, (side, side), interpolation=cv2.INTER_LINEAR), cv2.COLOR_BGR2RGB)
+        # DCS's 800 x 800 sky, the frame resized bilinearly as its tf.image.resize does, then the mip level read.
+        resized = cv2.resize(image, (800, 800), interpolation=cv2.INTER_LINEAR)
+        expected = cv2.cvtColor(halve(resized, texture.halvings), cv2.COLOR_BGR2RGB)
+        assert texture.halvings == 2 and side == 200
         np.testing.assert_array_equal(sky_bytes(env.unwrapped.physics, side), expected)
     # The 480p folder itself works as well.
     with gym.make("DCS/finger-spin-v0", split="easy", background_dir=folder, background_videos="validation") as env:

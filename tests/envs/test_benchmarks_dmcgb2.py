@@ -7,11 +7,12 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 import pytest
+from dm_control.utils import transformations
 
 from sgfd_envs.benchmarks import dcs, dmcgb2
 from sgfd_envs.benchmarks.dmcgb2 import EASY_SHIFT_DIVISOR, SHIFT_LIMITS, rotation_angles, shift_angles
 from sgfd_envs.benchmarks.media import dmcgb_clips, procedural_colour_set
-from sgfd_envs.benchmarks.scene import rotation_x, rotation_y, rotation_z, video_texture
+from sgfd_envs.benchmarks.scene import VideoTexture, video_texture
 
 SIZE = 32
 
@@ -70,9 +71,9 @@ def test_shift_pans_and_tilts_the_camera_inside_the_rectangle(mode):
     poses = shift_angles("cartpole", difficulty)
     for rotation, index in zip(rotations, indices, strict=True):
         a, b = poses[index]
-        expected = rotation_y(a) @ rotation_x(b)
+        expected = transformations.rotation_y_axis(np.radians(a)) @ transformations.rotation_x_axis(np.radians(b))
         if mode.startswith("rotate"):
-            expected = expected @ rotation_z(rotation_angles(difficulty)[index])
+            expected = expected @ transformations.rotation_z_axis(np.radians(rotation_angles(difficulty)[index]))
         np.testing.assert_allclose(rotation, expected, atol=1e-12)
 
 
@@ -168,12 +169,15 @@ def test_hard_modes_are_farther_from_train_than_easy_ones():
             assert 0 < easy < hard, family
 
 
-def test_the_video_texture_is_the_benchmarks_or_twice_the_image_resized_by_area():
-    # The benchmark's side and resize; the fast path's twice the observation's side, never above the benchmark's.
-    assert video_texture(256, cv2.INTER_CUBIC, 84, "benchmark") == (256, cv2.INTER_CUBIC)
-    assert video_texture(256, cv2.INTER_CUBIC, 84, "fast") == (168, cv2.INTER_AREA)
-    assert video_texture(256, cv2.INTER_CUBIC, 200, "fast") == (256, cv2.INTER_AREA)
-    assert (dmcgb2.projector_texture_side(84), dmcgb2.projector_texture_side(84, "fast")) == (256, 168)
-    assert (dcs.sky_texture_side(84), dcs.sky_texture_side(84, "fast")) == (800, 168)
+def test_the_video_texture_is_the_benchmarks_or_twice_the_image_then_halved_while_minified():
+    # The benchmark's side and resize, the fast path's twice the observation's side by area (never above the
+    # benchmark's); then halved while the halved side keeps texels_per_pixel texels per observation pixel.
+    assert video_texture(256, cv2.INTER_CUBIC, 84, "benchmark", 1.5) == VideoTexture(256, cv2.INTER_CUBIC, 1)
+    assert video_texture(256, cv2.INTER_CUBIC, 84, "benchmark", 1.6) == VideoTexture(256, cv2.INTER_CUBIC, 0)
+    assert video_texture(256, cv2.INTER_CUBIC, 84, "fast", 1.5) == VideoTexture(168, cv2.INTER_AREA, 0)
+    assert video_texture(256, cv2.INTER_CUBIC, 200, "fast", 0.5) == VideoTexture(256, cv2.INTER_AREA, 1)
+    assert video_texture(100, cv2.INTER_CUBIC, 10, "benchmark", 1.0).side == 25  # halved while it divides by 2
+    assert (dmcgb2.projector_texture_side(84), dmcgb2.projector_texture_side(84, "fast")) == (128, 168)
+    assert (dcs.sky_texture_side(84), dcs.sky_texture_side(84, "fast"), dcs.sky_texture_side(32)) == (400, 168, 200)
     with pytest.raises(ValueError, match=r"render must be one of \('benchmark', 'fast'\), got 'quick'"):
-        video_texture(256, cv2.INTER_CUBIC, 84, "quick")
+        video_texture(256, cv2.INTER_CUBIC, 84, "quick", 1.5)

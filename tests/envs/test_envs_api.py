@@ -28,9 +28,10 @@ def test_import_defaults_mujoco_gl_to_egl_and_respects_the_users_choice(preset, 
     environment = {key: value for key, value in os.environ.items() if key != "MUJOCO_GL"}
     if preset is not None:
         environment["MUJOCO_GL"] = preset
-    # Importing is enough: dm_control loads the backend then (GLFW imports fine, it fails only at rendering).
+    # Importing sgfd_envs loads no dm_control; the dm_control loaded after it (by the first env made) takes the
+    # backend it set (GLFW imports fine, it fails only at rendering).
     code = (
-        "import sys, os, sgfd_envs; assert 'dm_control._render' in sys.modules; "
+        "import sys, os, sgfd_envs; assert 'dm_control._render' not in sys.modules; "
         "from dm_control import _render; print(os.environ['MUJOCO_GL'], _render.BACKEND)"
     )
     result = subprocess.run([sys.executable, "-c", code], env=environment, capture_output=True, text=True, check=False)

@@ -1,4 +1,5 @@
-"""The code's layers: no import cycle between modules, and reporting without the training stack."""
+"""The code's layers: each module imports only from its floor and below, every import is one the graph sees (no
+project module imported by a string), no import cycle between modules, and reporting without the training stack."""
 
 from __future__ import annotations
 
@@ -9,6 +10,13 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 PACKAGES = ("sb3_sgfd", "sgfd_envs", "sgfd_zoo", "sgfd_analysis")
+#: The floors, lowest first: a module imports from its own floor and those below. The figures (sgfd_analysis) are
+#: drawn from the zoo's runs; the ``sgfd-zoo`` command dispatches to every command, the figures' included.
+FLOORS = (("sgfd_envs",), ("sb3_sgfd",), ("sgfd_zoo",), ("sgfd_analysis",), ("sgfd_zoo.cli", "sgfd_zoo.__main__"))
+#: Modules that import project modules by a name they compute, and the table (a literal dict, its values the
+#: modules) those names come from: the graph takes them from the table. The old paths of 0.1.0 are looked up in
+#: the modules that now hold their names, when an old saved file asks for them.
+COMPUTED_IMPORTS = {"sb3_sgfd._legacy": "MOVED"}
 
 
 def all_imports(node: ast.AST) -> set[str]:
@@ -24,14 +32,63 @@ def all_imports(node: ast.AST) -> set[str]:
     return imported
 
 
-def module_imports() -> dict[str, set[str]]:
-    """Module -> the project modules it imports, wherever in it (see ``all_imports``)."""
-    graph = {}
+def string_imports(node: ast.AST) -> list[ast.expr]:
+    """The module argument of every ``import_module(...)`` and ``__import__(...)`` call in ``node``."""
+    calls = [child for child in ast.walk(node) if isinstance(child, ast.Call) and child.args]
+    names = {"import_module", "__import__"}
+    return [
+        call.args[0]
+        for call in calls
+        if (isinstance(call.func, ast.Name) and call.func.id in names)
+        or (isinstance(call.func, ast.Attribute) and call.func.attr in names)
+    ]
+
+
+def names_a_project_module(argument: ast.expr) -> bool:
+    """Whether a string import's argument may name a project module: one that reads as a project module's name, or
+    one whose package cannot be read from the source (a variable, an f-string starting with a placeholder)."""
+    if isinstance(argument, ast.Constant) and isinstance(argument.value, str):
+        return argument.value.split(".")[0] in PACKAGES
+    if isinstance(argument, ast.JoinedStr) and argument.values and isinstance(argument.values[0], ast.Constant):
+        prefix = str(argument.values[0].value)
+        return "." not in prefix or prefix.split(".")[0] in PACKAGES
+    return True
+
+
+def computed_imports(name: str, tree: ast.Module) -> set[str]:
+    """The modules in the values of module ``name``'s table :data:`COMPUTED_IMPORTS` names (a literal dict)."""
+    for statement in tree.body:
+        if isinstance(statement, ast.Assign | ast.AnnAssign) and statement.value is not None:
+            targets = statement.targets if isinstance(statement, ast.Assign) else [statement.target]
+            if COMPUTED_IMPORTS[name] in [ast.unparse(target) for target in targets]:
+                return {module for modules in ast.literal_eval(statement.value).values() for module in modules}
+    raise AssertionError(f"{name}: no table {COMPUTED_IMPORTS[name]} at its top level")
+
+
+def parsed_modules() -> dict[str, ast.Module]:
+    """Every module of :data:`PACKAGES` by name, parsed."""
+    modules = {}
     for package in PACKAGES:
         for path in (REPO / package).rglob("*.py"):
             name = ".".join(path.relative_to(REPO).with_suffix("").parts).removesuffix(".__init__")
-            graph[name] = all_imports(ast.parse(path.read_text()))
+            modules[name] = ast.parse(path.read_text())
+    return modules
+
+
+def module_imports() -> dict[str, set[str]]:
+    """Module -> the project modules it imports, wherever in it (see ``all_imports``), and those it imports by a
+    computed name (:data:`COMPUTED_IMPORTS`)."""
+    graph = {}
+    for name, tree in parsed_modules().items():
+        graph[name] = all_imports(tree) | (computed_imports(name, tree) if name in COMPUTED_IMPORTS else set())
     return {name: {dep for dep in deps if dep in graph and dep != name} for name, deps in graph.items()}
+
+
+def floor(module: str) -> int:
+    """The floor of ``module``: that of the longest name in :data:`FLOORS` that is it or a package holding it."""
+    holders = [name for names in FLOORS for name in names if module == name or module.startswith(f"{name}.")]
+    longest = max(holders, key=len)
+    return next(index for index, names in enumerate(FLOORS) if longest in names)
 
 
 def test_the_import_graph_counts_lazy_and_type_only_imports():
@@ -43,11 +100,37 @@ def test_the_import_graph_counts_lazy_and_type_only_imports():
     assert "sb3_sgfd.common.encoder_sac" not in graph["sb3_sgfd.common.representation"]
 
 
+def test_a_project_module_imported_by_a_string_is_refused():
+    def flagged(code: str) -> list[bool]:
+        return [names_a_project_module(argument) for argument in string_imports(ast.parse(code))]
+
+    assert flagged("import importlib\nimportlib.import_module('sgfd_analysis.figures')") == [True]
+    assert flagged("from importlib import import_module\ndef f(module):\n    return import_module(module)") == [True]
+    assert flagged("__import__(f'sgfd_zoo.{name}')\nimportlib.import_module(f'{package}.x')") == [True, True]
+    assert flagged("importlib.import_module(f'dm_control.suite.{domain}')\n__import__('yaml')") == [False, False]
+    found = {
+        name: [ast.unparse(argument) for argument in string_imports(tree) if names_a_project_module(argument)]
+        for name, tree in parsed_modules().items()
+        if name not in COMPUTED_IMPORTS
+    }
+    assert not {name: arguments for name, arguments in found.items() if arguments}
+    assert "sb3_sgfd.sgfd.sgfd_sac" in module_imports()["sb3_sgfd._legacy"]  # the old paths' targets, from MOVED
+
+
+def test_each_module_imports_from_its_floor_and_below():
+    graph = module_imports()
+    upward = sorted(f"{name} -> {dep}" for name, deps in graph.items() for dep in deps if floor(dep) > floor(name))
+    assert not upward, upward
+    assert floor("sgfd_zoo.cli") > floor("sgfd_analysis.figures") > floor("sgfd_zoo.runs.folders")
+    # the command's reach into the figures is an import the graph sees
+    assert {"sgfd_analysis.figures", "sgfd_analysis.correlation"} <= graph["sgfd_zoo.cli"]
+
+
 def test_no_import_cycle_between_modules():
     graph = module_imports()
     # a package's __init__ importing its own submodules is the package, not a cycle
     edges = {name: {dep for dep in deps if not name.startswith(f"{dep}.")} for name, deps in graph.items()}
-    assert len(graph) > 40 and "sgfd_zoo.runs" in edges["sgfd_zoo.evaluate"]
+    assert len(graph) > 40 and "sgfd_zoo.runs.folders" in edges["sgfd_zoo.report.evaluate"]
     cycles = []
 
     def visit(name: str, path: list[str]) -> None:
@@ -64,9 +147,29 @@ def test_no_import_cycle_between_modules():
     assert not cycles, cycles[:3]
 
 
+#: what ``sgfd-zoo plot``, ``evaluate``'s tables, ``-h`` and the sweep's planning load: the command, the argument
+#: checks and the keys, the report wing, the run folders, records, files, checkpoints, locks and provenance, the
+#: sweep's plan and progress board
+REPORTING = [
+    "sgfd_zoo.cli",
+    "sgfd_zoo.arguments",
+    "sgfd_zoo.algos",
+    "sgfd_zoo.report.evaluate",
+    "sgfd_zoo.report.plot",
+    "sgfd_zoo.report.statistics",
+    "sgfd_zoo.runs.folders",
+    "sgfd_zoo.runs.records",
+    "sgfd_zoo.runs.files",
+    "sgfd_zoo.runs.checkpoints",
+    "sgfd_zoo.runs.locks",
+    "sgfd_zoo.runs.provenance",
+    "sgfd_zoo.sweep.plan",
+    "sgfd_zoo.sweep.progress",
+]
+
+
 def test_reporting_imports_neither_torch_nor_rl_zoo3():
-    code = "import sys, sgfd_zoo.cli, sgfd_zoo.plot, sgfd_zoo.runs, sgfd_zoo.records, sgfd_zoo.statistics, "
-    code += "sgfd_zoo.arguments, sgfd_zoo.files, sgfd_zoo.checkpoints, sgfd_zoo.locks, sgfd_zoo.sweep_plan; "
+    code = f"import sys, {', '.join(REPORTING)}; "
     code += "print(sorted(m for m in ('torch', 'rl_zoo3', 'optuna', 'ray', 'stable_baselines3') if m in sys.modules))"
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
     assert loaded.stdout.strip() == "[]"

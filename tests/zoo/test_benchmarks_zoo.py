@@ -13,7 +13,7 @@ from sgfd_envs.registry import task_entry
 from sgfd_zoo.algos import hyperparams_file
 from sgfd_zoo.arguments import check_env_id
 from sgfd_zoo.experiment import SGFDExperimentManager, register_algorithms
-from sgfd_zoo.runs import RunFolder
+from sgfd_zoo.runs.folders import RunFolder
 
 BENCHMARK_IDS = [env_id for ids in sgfd_envs.BENCHMARK_IDS.values() for env_id in ids]
 AGENTS = ("ambs", "dbc", "sac", "sgfd_sac", "sgfd_sac_moderate", "sgfd_sac_official", "sgfd_sac_plain", "sgqn", "ted")
@@ -99,7 +99,7 @@ def test_a_benchmark_run_trains_and_evaluates_in_the_benchmarks_layout(tmp_path)
 
 
 def test_tables_mark_the_splits_played_on_a_stand_in():
-    from sgfd_zoo.evaluate import render_benchmark_tables, render_tables
+    from sgfd_zoo.report.evaluate import render_benchmark_tables, render_tables
 
     # as evaluate writes them (bools) and as they read back from csv (strings)
     marks = (("train", False), ("video_hard", True), ("color_hard", "False"), ("distracting_cs_0.1", "True"))

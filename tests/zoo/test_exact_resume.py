@@ -12,7 +12,7 @@ from stable_baselines3.common.vec_env import VecFrameStack, VecTransposeImage
 
 import sgfd_envs
 from sb3_sgfd import AMBS, SGFD_SAC, AMBSPolicy, DomainReplayBuffer, MlpPolicy
-from sgfd_zoo.training_state import RestoreTrainingState, capture
+from sgfd_zoo.runs.training_state import RestoreTrainingState, capture
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 TINY = dict(learning_starts=60, batch_size=16, seed=3, policy_kwargs=dict(net_arch=[16, 16]))

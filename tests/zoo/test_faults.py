@@ -40,11 +40,12 @@ import stable_baselines3.common.off_policy_algorithm
 from stable_baselines3.common.save_util import load_from_pkl
 
 import sgfd_envs.dmc
-from sgfd_zoo import sweep, training
-from sgfd_zoo.checkpoints import read_index, remove_checkpoint_files
+from sgfd_zoo import training
 from sgfd_zoo.cli import main as zoo_main
-from sgfd_zoo.locks import LOCK_FILE, RunLock
-from sgfd_zoo.runs import FINISHED_MARKER, RunFolder
+from sgfd_zoo.runs.checkpoints import read_index, remove_checkpoint_files
+from sgfd_zoo.runs.folders import FINISHED_MARKER, RunFolder
+from sgfd_zoo.runs.locks import LOCK_FILE, RunLock
+from sgfd_zoo.sweep import command as sweep
 from tests.zoo.zoo_runs import ENV_ID, NAME, SETTINGS, TINY_PARAMS, Training, has_checkpoint, train_args, zoo
 
 
@@ -394,7 +395,7 @@ def test_signals_at_random_points_leave_a_finished_or_a_resumable_run(tmp_path: 
 KILLED_TAKING_THE_LOCK = """
 import os, signal, sys
 from pathlib import Path
-from sgfd_zoo.locks import RunLock
+from sgfd_zoo.runs.locks import RunLock
 os.link = lambda *_: os.kill(os.getpid(), signal.SIGKILL)  # killed between writing its lock file and linking it
 RunLock.acquire(Path(sys.argv[1]))
 """

@@ -11,7 +11,7 @@ import sgfd_envs
 from sb3_sgfd import EncoderSAC
 from sgfd_zoo import callbacks, training
 from sgfd_zoo.callbacks import MultiSplitEvalCallback, ProgressCallback
-from sgfd_zoo.progress import LiveView, ProgressBoard, duration, progress_block, progress_line
+from sgfd_zoo.sweep.progress import LiveView, ProgressBoard, duration, progress_block, progress_line
 
 
 def test_a_run_reports_its_steps_rate_end_and_latest_evaluation():

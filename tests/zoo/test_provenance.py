@@ -6,7 +6,7 @@ import subprocess
 from importlib import metadata
 from pathlib import Path
 
-from sgfd_zoo import provenance
+from sgfd_zoo.runs import provenance
 
 
 def git(folder: Path, *args: str) -> str:

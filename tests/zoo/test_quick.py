@@ -19,8 +19,8 @@ from sgfd_zoo import algos, quick
 from sgfd_zoo.algos import classifier_start_warning
 from sgfd_zoo.arguments import ZooError
 from sgfd_zoo.cli import main as zoo_main
-from sgfd_zoo.plot import draw_env, load_curves
-from sgfd_zoo.runs import FINISHED_MARKER, RunFolder
+from sgfd_zoo.report.plot import draw_env, load_curves
+from sgfd_zoo.runs.folders import FINISHED_MARKER, RunFolder
 
 REPO = Path(__file__).resolve().parents[2]
 ENV_ID = "SGFD/MT-walker-walk-v0"

@@ -1,4 +1,4 @@
-"""sgfd_zoo.statistics: scores per run and split, aggregate metrics with stratified-bootstrap CIs, figures."""
+"""sgfd_zoo.report.statistics: scores per run and split, aggregate metrics with stratified-bootstrap CIs, figures."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from rliable import metrics
 
-from sgfd_zoo.statistics import (
+from sgfd_zoo.report.statistics import (
     IMPROVEMENT,
     aggregate,
     read_csv,
@@ -99,7 +99,7 @@ def test_render_shows_each_interval_and_the_runs_it_rests_on():
 
 
 def test_split_order_puts_train_first_then_each_benchmarks_modes_in_its_papers_order():
-    from sgfd_zoo.statistics import split_sort_key
+    from sgfd_zoo.report.statistics import split_sort_key
 
     modes = ["video_hard", "hard", "color_easy", "rotate_easy", "train", "easy", "color_video_hard", "medium"]
     assert sorted(modes, key=split_sort_key) == [
@@ -108,7 +108,7 @@ def test_split_order_puts_train_first_then_each_benchmarks_modes_in_its_papers_o
 
 
 def test_benchmark_layout_is_tasks_by_modes_with_the_iqm_of_each_mode():
-    from sgfd_zoo.evaluate import render_benchmark_tables
+    from sgfd_zoo.report.evaluate import render_benchmark_tables
 
     tasks = ("DMCGB/walker-walk-v0", "DMCGB/finger-spin-v0")
     returns = {

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sgfd_zoo import provenance
 from sgfd_zoo.cli import main as zoo_main
+from sgfd_zoo.runs import provenance
 
 pytestmark = pytest.mark.ray
 
@@ -131,7 +131,7 @@ def write_logged_run(folder: Path, algo: str, config: dict[str, object], logged:
 
 
 def test_the_diagnostics_read_each_runs_own_threshold_and_name_the_most_salient_feature(tmp_path):
-    from sgfd_zoo.runs import find_runs
+    from sgfd_zoo.runs.folders import find_runs
     from sgfd_zoo.study import diagnostics_summary
 
     logged = {"sgfd/classifier_accuracy": [0.25, 0.85, 0.95], "sgfd/top_saliency_feature": [24, 24, 3]}
@@ -165,9 +165,9 @@ def write_record(study: Path, algo: str, seed: int, splits: tuple[str, ...]) -> 
 
 
 def test_a_record_without_its_whole_final_evaluation_is_trained_again_and_a_whole_one_is_not(tmp_path):
-    from sgfd_zoo import sweep
-    from sgfd_zoo.records import RunRecord
+    from sgfd_zoo.runs.records import RunRecord
     from sgfd_zoo.study import read_spec, study_records
+    from sgfd_zoo.sweep import command as sweep
 
     spec = read_spec(write_spec(tmp_path / "study", seeds=[0, 1, 2]))
     whole = write_record(tmp_path / "study", "sgfd_sac", 0, ("train", "interpolation", "extrapolation"))
@@ -200,8 +200,8 @@ def write_log_run(logs: Path, algo: str, run_id: int, seed: int) -> Path:
 
 def test_a_fresh_log_folders_run_never_overwrites_an_earlier_sessions_record_of_another_seed(tmp_path):
     from sgfd_zoo.arguments import ZooError
-    from sgfd_zoo.records import RunRecord, find_records
-    from sgfd_zoo.runs import RunFolder
+    from sgfd_zoo.runs.folders import RunFolder
+    from sgfd_zoo.runs.records import RunRecord, find_records
     from sgfd_zoo.study import record_of
 
     study, runs = tmp_path / "study", tmp_path / "study" / "runs"
@@ -230,8 +230,8 @@ def test_a_fresh_log_folders_run_never_overwrites_an_earlier_sessions_record_of_
 
 
 def test_an_unreadable_final_evaluation_is_named(tmp_path):
-    from sgfd_zoo.files import UnreadableFile
-    from sgfd_zoo.records import RunRecord
+    from sgfd_zoo.runs.files import UnreadableFile
+    from sgfd_zoo.runs.records import RunRecord
 
     record = RunRecord(write_record(tmp_path, "sac", 0, ("train",)))
     record.final_evaluation.write_text("algo,env,split,seed\nsac,x,train,zero\n")

@@ -24,10 +24,12 @@ import pytest
 import ray
 import yaml
 
-from sgfd_zoo import cli, ray_runs, sweep
-from sgfd_zoo.checkpoints import Checkpoint, read_index, write_index
-from sgfd_zoo.files import atomic_write
-from sgfd_zoo.runs import RunFolder, find_runs, mark_finished
+from sgfd_zoo import cli
+from sgfd_zoo.runs.checkpoints import Checkpoint, read_index, write_index
+from sgfd_zoo.runs.files import atomic_write
+from sgfd_zoo.runs.folders import RunFolder, find_runs, mark_finished
+from sgfd_zoo.sweep import command as sweep
+from sgfd_zoo.sweep import ray_runs
 
 pytestmark = pytest.mark.ray
 

@@ -25,13 +25,13 @@ import yaml
 from stable_baselines3 import SAC
 
 import sgfd_envs
-from sgfd_zoo import locks
-from sgfd_zoo.checkpoint_callback import ResumableCheckpointCallback
-from sgfd_zoo.checkpoints import read_index
-from sgfd_zoo.files import TMP_PREFIX, temporary_path
-from sgfd_zoo.locks import LOCK_FILE, RunLock, RunLocked, live_holder, read_holder
-from sgfd_zoo.runs import STEPS_KEY, RunFolder, find_runs
-from sgfd_zoo.sweep_plan import Job, locked_runs
+from sgfd_zoo.runs import locks
+from sgfd_zoo.runs.checkpoint_callback import ResumableCheckpointCallback
+from sgfd_zoo.runs.checkpoints import read_index
+from sgfd_zoo.runs.files import TMP_PREFIX, temporary_path
+from sgfd_zoo.runs.folders import STEPS_KEY, RunFolder, find_runs
+from sgfd_zoo.runs.locks import LOCK_FILE, RunLock, RunLocked, live_holder, read_holder
+from sgfd_zoo.sweep.plan import Job, locked_runs
 from tests.zoo.zoo_runs import ENV_ID, NAME, SETTINGS, Training, has_checkpoint, train_args, zoo
 
 # -- runs started together ---------------------------------------------------------------------------------
@@ -239,7 +239,7 @@ def test_sigterm_stops_training_at_a_checkpoint_and_gives_the_lock_back(tmp_path
 WRITE_MANY = """
 import json, sys
 from pathlib import Path
-from sgfd_zoo.files import atomic_write
+from sgfd_zoo.runs.files import atomic_write
 content = json.dumps({"writer": sys.argv[2], "padding": "x" * 100_000})
 for _ in range(40):
     atomic_write(Path(sys.argv[1]), lambda tmp: Path(tmp).write_text(content))

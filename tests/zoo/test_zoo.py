@@ -14,14 +14,15 @@ import torch as th
 import yaml
 
 import sgfd_envs
-from sgfd_zoo import provenance, training
+from sgfd_zoo import training
 from sgfd_zoo.algos import SGFD_ALGOS, hyperparams_file
 from sgfd_zoo.arguments import ZooError
-from sgfd_zoo.checkpoints import read_index
 from sgfd_zoo.cli import main as zoo_main
-from sgfd_zoo.evaluate import read_results, render_tables
 from sgfd_zoo.experiment import SGFDExperimentManager, register_algorithms
-from sgfd_zoo.runs import RunFolder
+from sgfd_zoo.report.evaluate import read_results, render_tables
+from sgfd_zoo.runs import provenance
+from sgfd_zoo.runs.checkpoints import read_index
+from sgfd_zoo.runs.folders import RunFolder
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 RUN_NAME = "SGFD-MT-walker-walk-v0"

@@ -12,8 +12,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from sgfd_zoo.checkpoints import read_index
 from sgfd_zoo.cli import main as zoo_main
+from sgfd_zoo.runs.checkpoints import read_index
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 NAME = "SGFD-MT-walker-walk-v0"

@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 import sgfd_envs
-from sgfd_zoo.files import UnreadableFile, atomic_write
-from sgfd_zoo.runs import NamedRun, RunFolder, run_paths
+from sgfd_zoo.runs.files import UnreadableFile, atomic_write
+from sgfd_zoo.runs.folders import NamedRun, RunFolder, run_paths
 
 FINAL_EVALUATION_FIELDS = ("algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes")
 # Kept when present: whether the split played on a built-in stand-in of a benchmark's data (older records lack it).

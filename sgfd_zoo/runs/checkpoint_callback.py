@@ -18,8 +18,9 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sgfd_zoo import training_state
-from sgfd_zoo.checkpoints import (
+from sgfd_zoo.exit_codes import INTERRUPTED, TERMINATED
+from sgfd_zoo.runs import training_state
+from sgfd_zoo.runs.checkpoints import (
     Checkpoint,
     checkpoint_file_name,
     read_index,
@@ -27,9 +28,8 @@ from sgfd_zoo.checkpoints import (
     scan_checkpoints,
     write_index,
 )
-from sgfd_zoo.exit_codes import INTERRUPTED, TERMINATED
-from sgfd_zoo.files import FileWriteError, StoredFile, UnreadableFile, atomic_write, write_failure
-from sgfd_zoo.locks import RunLock
+from sgfd_zoo.runs.files import FileWriteError, StoredFile, UnreadableFile, atomic_write, write_failure
+from sgfd_zoo.runs.locks import RunLock
 
 
 @dataclass(frozen=True)
@@ -155,8 +155,8 @@ class ResumableCheckpointCallback(BaseCallback):
     """
     Every ``save_freq`` calls, and when ``stop`` is set (then training stops), save a checkpoint between two env
     steps (at ``on_rollout_start``: with ``train_freq`` k, the first at or after the due call): the parts of
-    ``parts`` that the model has, each written whole (:func:`sgfd_zoo.runs.atomic_write`: fsync'd, checked, renamed),
-    then ``checkpoint.json`` listing them with their sizes and sha256. The two newest checkpoints are kept:
+    ``parts`` that the model has, each written whole (:func:`sgfd_zoo.runs.files.atomic_write`: fsync'd, checked,
+    renamed), then ``checkpoint.json`` listing them with their sizes and sha256. The two newest checkpoints are kept:
     before a new one is written the older is deleted, and the newer stays until the new one is complete, so a
     crash, a kill or a full disk at any moment leaves the previous checkpoint usable (peak: two checkpoints
     on disk; a paper-scale replay buffer is several GB).
@@ -170,7 +170,7 @@ class ResumableCheckpointCallback(BaseCallback):
         when stopped
     :param save_path: Folder of the checkpoint files (the run folder)
     :param stop: Set to stop training at the next step, after a checkpoint
-    :param lock: The run's lock, held by this process (:mod:`sgfd_zoo.locks`); None: not checked
+    :param lock: The run's lock, held by this process (:mod:`sgfd_zoo.runs.locks`); None: not checked
     :param parts: What a checkpoint holds, in the order written (the model last)
     """
 

@@ -12,7 +12,7 @@ from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global fig
 import sgfd_envs
 from sgfd_zoo.algos import algo_sort_key, column_name
 from sgfd_zoo.arguments import ZooError
-from sgfd_zoo.runs import env_name, find_runs
+from sgfd_zoo.runs.folders import env_name, find_runs
 
 Curve = tuple[np.ndarray, np.ndarray]
 

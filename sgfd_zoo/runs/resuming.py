@@ -1,6 +1,6 @@
 """Where a run starts from: the run ``--resume`` continues and the checkpoint it continues from, a run folder
 started again from step 0, and a checkpoint loaded into a model. Each function is one decision of
-:class:`sgfd_zoo.experiment.SGFDExperimentManager`; the caller holds the run's lock (:mod:`sgfd_zoo.locks`)
+:class:`sgfd_zoo.experiment.SGFDExperimentManager`; the caller holds the run's lock (:mod:`sgfd_zoo.runs.locks`)
 before it changes anything in the folder."""
 
 from __future__ import annotations
@@ -12,10 +12,11 @@ from typing import Any
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
-from sgfd_zoo import training_state
 from sgfd_zoo.arguments import ZooError
-from sgfd_zoo.checkpoint_callback import CHECKPOINT_PARTS
-from sgfd_zoo.checkpoints import (
+from sgfd_zoo.config_checks import first_line
+from sgfd_zoo.runs import training_state
+from sgfd_zoo.runs.checkpoint_callback import CHECKPOINT_PARTS
+from sgfd_zoo.runs.checkpoints import (
     CHECKPOINT_INDEX,
     KEPT_CHECKPOINTS,
     Checkpoint,
@@ -24,9 +25,8 @@ from sgfd_zoo.checkpoints import (
     remove_checkpoint_files,
     write_index,
 )
-from sgfd_zoo.config_checks import first_line
-from sgfd_zoo.files import UnreadableFile
-from sgfd_zoo.runs import NoUsableCheckpoint, RunFolder, runs_by_id
+from sgfd_zoo.runs.files import UnreadableFile
+from sgfd_zoo.runs.folders import NoUsableCheckpoint, RunFolder, runs_by_id
 
 
 def run_to_resume(log_folder: Path, algo: str, env_id: str, run_path: Path | None) -> RunFolder:

@@ -20,8 +20,8 @@ import numpy as np
 
 from sgfd_envs.benchmarks import dcs, dmcgb2
 from sgfd_zoo.algos import algo_sort_key, column_name
-from sgfd_zoo.records import RunRecord
-from sgfd_zoo.runs import RunFolder
+from sgfd_zoo.runs.folders import RunFolder
+from sgfd_zoo.runs.records import RunRecord
 
 MAX_RETURN = 1000.0
 SCORE_FIELDS = ["algo", "env", "seed", "split", "return"]

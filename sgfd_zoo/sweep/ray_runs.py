@@ -21,10 +21,10 @@ from typing import Any
 from sgfd_zoo import training
 from sgfd_zoo.arguments import TrainingStopped, ZooError
 from sgfd_zoo.config_checks import first_line
-from sgfd_zoo.locks import HEARTBEAT_SECONDS, STALE_SECONDS, live_holder
-from sgfd_zoo.progress import LiveView, ProgressBoard, progress_block, returns_text
-from sgfd_zoo.runs import NoUsableCheckpoint
-from sgfd_zoo.sweep_plan import Job
+from sgfd_zoo.runs.folders import NoUsableCheckpoint
+from sgfd_zoo.runs.locks import HEARTBEAT_SECONDS, STALE_SECONDS, live_holder
+from sgfd_zoo.sweep.plan import Job
+from sgfd_zoo.sweep.progress import LiveView, ProgressBoard, progress_block, returns_text
 
 BOARD_NAME = "sgfd-zoo sweep progress"  # the progress board actor, in this sweep's Ray namespace
 #: Seconds between two checks that the cluster still answers, while runs are pending.
@@ -50,7 +50,7 @@ def train_job(job: Job, train_args: list[str], cwd: str, board: Any = None) -> b
     it again from step 0 when none of its checkpoints verifies. Returns whether it resumed.
 
     A retry after a lost node finds the run locked by the attempt that died there: it waits until that lock's
-    heartbeat is stale (:data:`sgfd_zoo.locks.STALE_SECONDS`), then takes it over.
+    heartbeat is stale (:data:`sgfd_zoo.runs.locks.STALE_SECONDS`), then takes it over.
 
     :param job: The run
     :param train_args: Flags for ``sgfd-zoo train`` besides --algo, --env, --seed, -f

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from sgfd_zoo.arguments import ZooError
-from sgfd_zoo.files import fsync, temporary_path
+from sgfd_zoo.runs.files import fsync, temporary_path
 
 LOCK_FILE = "writer.lock"
 #: How often a writer renews its lock's heartbeat.
@@ -172,7 +172,7 @@ def _create(path: Path, content: str) -> bool:
     """Create ``path`` holding ``content`` if it does not exist, atomically: a whole temporary file linked to it.
     False when it exists. Where the file system has no hard links, an exclusive create (``O_EXCL``) instead.
 
-    The temporary file is named like every file the zoo writes (:func:`~sgfd_zoo.files.temporary_path`), so the
+    The temporary file is named like every file the zoo writes (:func:`~sgfd_zoo.runs.files.temporary_path`), so the
     run's writer removes one a killed process left, as it removes those of interrupted checkpoints; a temporary
     file so removed while this process was linking it means the folder has a writer: False."""
     tmp = temporary_path(path)

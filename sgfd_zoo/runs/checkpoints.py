@@ -4,7 +4,7 @@
     checkpoint_<n>_steps.zip                a checkpoint's model (written last: the checkpoint is complete)
     checkpoint_<part>_<n>_steps.pkl         its other parts: replay_buffer, vecnormalize, training_state
 
-Files only: what a checkpoint holds and when it is taken is :mod:`sgfd_zoo.checkpoint_callback`'s.
+Files only: what a checkpoint holds and when it is taken is :mod:`sgfd_zoo.runs.checkpoint_callback`'s.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sgfd_zoo.files import TMP_PREFIX, StoredFile, UnreadableFile, read_json, sha256_of, write_json
+from sgfd_zoo.runs.files import TMP_PREFIX, StoredFile, UnreadableFile, read_json, sha256_of, write_json
 
 CHECKPOINT_INDEX = "checkpoint.json"
 INDEX_FORMAT = 2  # 1: the single-checkpoint index before sizes and checksums ({"num_timesteps", "model", ...})
@@ -109,7 +109,7 @@ def remove_checkpoint_files(folder: Path, keep: Iterable[Checkpoint]) -> list[st
     """Delete the checkpoint files (and the temporary files of interrupted writes) of ``folder`` that no
     checkpoint of ``keep`` names; returns their names. Only its writer calls this (it holds the run's lock), so
     every temporary file there is one a stopped process left, or one of a process trying to take the lock, which
-    is refused either way (:mod:`sgfd_zoo.locks`)."""
+    is refused either way (:mod:`sgfd_zoo.runs.locks`)."""
     kept = {stored.name for checkpoint in keep for stored in checkpoint.files.values()}
     removed = []
     leftovers = [*Path(folder).glob(f"{TMP_PREFIX}*"), *Path(folder).glob(f"*/{TMP_PREFIX}*")]

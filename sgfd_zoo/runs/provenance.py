@@ -11,7 +11,7 @@ from pathlib import Path
 
 PACKAGES = ("sb3-sgfd", "stable-baselines3", "rl-zoo3", "torch", "numpy", "gymnasium", "dm-control", "mujoco", "ray")
 SOURCE_FOLDERS = ("sb3_sgfd", "sgfd_envs", "sgfd_zoo")
-_ROOT = Path(__file__).resolve().parents[1]
+_ROOT = Path(__file__).resolve().parents[2]  # the checkout holding sgfd_zoo/runs/
 
 
 def _git(*args: str) -> str | None:

@@ -6,16 +6,16 @@
         <EnvName>/args.yml, config.yml          rl-zoo3's saved arguments and hyperparameters
         <EnvName>/command.txt                   the ``sgfd-zoo train`` command of its latest start (quoted as
                                                 a shell reads it; earlier versions kept the flags in command.json)
-        <EnvName>/versions.txt                  what trained it (:mod:`sgfd_zoo.provenance`), a block per start
+        <EnvName>/versions.txt                  what trained it (:mod:`sgfd_zoo.runs.provenance`), a block per start
         evaluations_<split>.npz                 evaluations during training, per split
         progress.csv, progress_from_<n>.csv     everything logged (a resumed run continues in a new file)
-        checkpoint.json, checkpoint_*           its checkpoints (:mod:`sgfd_zoo.checkpoints`)
-        writer.lock                             while a process trains it: which one (:mod:`sgfd_zoo.locks`)
+        checkpoint.json, checkpoint_*           its checkpoints (:mod:`sgfd_zoo.runs.checkpoints`)
+        writer.lock                             while a process trains it: which one (:mod:`sgfd_zoo.runs.locks`)
         final_evaluation.json                   sgfd-zoo evaluate's result for the final model (reused while it fits)
     <log folder>/<algo>/<EnvName>_<id>.log      a sweep run's output, beside its folder
 
-A study keeps a finished run's compact record (:mod:`sgfd_zoo.records`). Every file is written through
-:func:`sgfd_zoo.files.atomic_write`.
+A study keeps a finished run's compact record (:mod:`sgfd_zoo.runs.records`). Every file is written through
+:func:`sgfd_zoo.runs.files.atomic_write`.
 
 Whether a run is finished is decided here only (:attr:`RunFolder.finished`). The module reads and writes files
 and nothing more: it imports nothing of the experiment, and plotting and the sweep's planning use it without
@@ -39,11 +39,11 @@ import numpy as np
 import yaml
 
 import sgfd_envs
-from sgfd_zoo import provenance
 from sgfd_zoo.algos import SGFD_ALGOS
 from sgfd_zoo.arguments import ZooError, check_env_id
-from sgfd_zoo.checkpoints import Checkpoint, read_index, scan_checkpoints
-from sgfd_zoo.files import StoredFile, UnreadableFile, atomic_write, read_json, write_json
+from sgfd_zoo.runs import provenance
+from sgfd_zoo.runs.checkpoints import Checkpoint, read_index, scan_checkpoints
+from sgfd_zoo.runs.files import StoredFile, UnreadableFile, atomic_write, read_json, write_json
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -97,7 +97,7 @@ class NamedRun:
 
     @property
     def versions_file(self) -> Path:
-        """What trained it (:mod:`sgfd_zoo.provenance`), a block per start: ``versions.txt`` beside its config."""
+        """What trained it (:mod:`sgfd_zoo.runs.provenance`), a block per start: ``versions.txt`` beside its config."""
         return self.config_dir / "versions.txt"
 
     @functools.cached_property

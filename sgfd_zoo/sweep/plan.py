@@ -7,8 +7,8 @@ from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from sgfd_zoo.locks import RunLocked, live_holder
-from sgfd_zoo.runs import RunFolder, find_runs, runs_by_id
+from sgfd_zoo.runs.folders import RunFolder, find_runs, runs_by_id
+from sgfd_zoo.runs.locks import RunLocked, live_holder
 
 
 @dataclass(frozen=True)

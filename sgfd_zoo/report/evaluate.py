@@ -1,5 +1,5 @@
 """``sgfd-zoo evaluate``: every trained model of a log folder on every split, as the paper's tables and as
-aggregate statistics with confidence intervals (:mod:`sgfd_zoo.statistics`); runs on a benchmark's ids (DMC-GB,
+aggregate statistics with confidence intervals (:mod:`sgfd_zoo.report.statistics`); runs on a benchmark's ids (DMC-GB,
 DMC-GB2, the Distracting Control Suite) also in that benchmark's layout, tasks x modes, with the IQM of each mode
 (DMC-GB's and DMC-GB2's ``distracting_cs`` once per intensity). A split played on a built-in stand-in of the
 benchmark's data (no ``data_dir``/``background_dir`` in the run's env kwargs) is marked in every table."""
@@ -21,8 +21,7 @@ import sgfd_envs
 from sgfd_envs.registry import BENCHMARK_KINDS, benchmark_of
 from sgfd_zoo.algos import algo_sort_key, column_name
 from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id, train_command
-from sgfd_zoo.runs import RunFolder, find_runs
-from sgfd_zoo.statistics import (
+from sgfd_zoo.report.statistics import (
     MAX_RETURN,
     STAND_IN_MARK,
     STAND_IN_NOTE,
@@ -34,6 +33,7 @@ from sgfd_zoo.statistics import (
     write_csv,
     write_statistics,
 )
+from sgfd_zoo.runs.folders import RunFolder, find_runs
 
 RESULT_FIELDS = ["algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes", "stand_in", "run"]
 
@@ -139,7 +139,7 @@ def render_benchmark_tables(results: list[dict[str, Any]], reps: int = 2000, see
     DMC-GB's layout for the runs on a benchmark's ids: per benchmark and algorithm a table with its tasks as rows
     and its modes as columns (``train`` first), ``mean ± std`` over seeds, and a last row with the IQM of each
     mode's normalised scores over the algorithm's runs and the benchmark's tasks, with its 95% stratified-bootstrap
-    CI (rliable, :func:`sgfd_zoo.statistics.aggregate`). Empty when no run is on a benchmark id.
+    CI (rliable, :func:`sgfd_zoo.report.statistics.aggregate`). Empty when no run is on a benchmark id.
 
     :param results: rows of ``sgfd-zoo evaluate``
     :param reps: bootstrap replications

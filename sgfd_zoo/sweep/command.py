@@ -30,13 +30,14 @@ from collections.abc import Collection, Sequence
 from pathlib import Path
 
 import sgfd_envs  # before anything imports dm_control: it picks MuJoCo's headless GL backend
-from sgfd_zoo import evaluate, training
+from sgfd_zoo import training
 from sgfd_zoo.algos import SGFD_ALGOS
 from sgfd_zoo.arguments import ZooError, check_log_folder, checked_names, flag_value, has_flag
 from sgfd_zoo.exit_codes import INTERRUPTED
-from sgfd_zoo.ray_runs import ClusterLost, run_jobs
-from sgfd_zoo.runs import find_runs
-from sgfd_zoo.sweep_plan import Job, locked_runs, plan
+from sgfd_zoo.report import evaluate
+from sgfd_zoo.runs.folders import find_runs
+from sgfd_zoo.sweep.plan import Job, locked_runs, plan
+from sgfd_zoo.sweep.ray_runs import ClusterLost, run_jobs
 
 # Train flags the sweep sets per run itself, and what to use instead.
 SWEEP_OWNED_FLAGS = {

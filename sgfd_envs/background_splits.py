@@ -1,0 +1,81 @@
+"""Which background source is each domain of the background ids' splits: a seed of the built-in procedural banks,
+or a file of a user's folder (``background_dir``). A user's folder either has ``train/`` and ``test/`` subfolders,
+one source per file, or is flat: its sorted files give the first four training sources and the rest the test ones.
+
+Import-light (no OpenCV): the id table counts domains with it; :mod:`sgfd_envs.backgrounds` makes the sources.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+BACKGROUND_SPLITS = ("train", "test")
+# Disjoint seed banks: a test texture is never a training one.
+PROCEDURAL_SEEDS: dict[str, tuple[int, ...]] = {"train": (0, 1, 2, 3), "test": (1000, 1001, 1002, 1003)}
+# SGQN's overlay images (Places365 in its paper): a third bank, disjoint from the training and test backgrounds.
+OVERLAY_SEEDS = tuple(range(2000, 2032))
+TRAIN_SOURCES_IN_FLAT_FOLDER = 4
+
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp", ".tif", ".tiff")
+
+
+def check_background_split(split: str) -> str:
+    """Return ``split`` if it is a background split, else raise.
+
+    :param split: ``"train"`` or ``"test"``
+    """
+    if split not in BACKGROUND_SPLITS:
+        raise ValueError(f"split must be one of {BACKGROUND_SPLITS} for background ids, got {split!r}")
+    return split
+
+
+def _media_files(folder: Path) -> tuple[Path, ...]:
+    return tuple(
+        sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES + IMAGE_SUFFIXES)
+    )
+
+
+def background_files(background_dir: str | Path) -> dict[str, tuple[Path, ...]]:
+    """The source files of each split in a user's folder.
+
+    :param background_dir: folder with ``train/`` and ``test/`` subfolders, or a flat folder of at
+        least five videos/images (the first four, sorted by name, are the training sources)
+    """
+    folder = Path(background_dir).expanduser()
+    if not folder.is_dir():
+        raise FileNotFoundError(f"background_dir {str(folder)!r} is not an existing folder")
+    suffixes = ", ".join(VIDEO_SUFFIXES + IMAGE_SUFFIXES)
+    subfolders = {split: folder / split for split in BACKGROUND_SPLITS}
+    present = [split for split, sub in subfolders.items() if sub.is_dir()]
+    if present:
+        if len(present) != len(BACKGROUND_SPLITS):
+            raise ValueError(
+                f"background_dir {str(folder)!r} has {present[0]}/ but no "
+                f"{({*BACKGROUND_SPLITS} - {*present}).pop()}/: give both or neither"
+            )
+        files = {split: _media_files(sub) for split, sub in subfolders.items()}
+        for split, found in files.items():
+            if not found:
+                raise ValueError(f"background_dir {str(subfolders[split])!r} holds no video or image ({suffixes})")
+        return files
+    found = _media_files(folder)
+    if len(found) <= TRAIN_SOURCES_IN_FLAT_FOLDER:
+        raise ValueError(
+            f"background_dir {str(folder)!r} holds {len(found)} videos/images ({suffixes}); a flat folder "
+            f"needs at least {TRAIN_SOURCES_IN_FLAT_FOLDER + 1} ({TRAIN_SOURCES_IN_FLAT_FOLDER} training, "
+            "the rest for testing), or use train/ and test/ subfolders"
+        )
+    return {"train": found[:TRAIN_SOURCES_IN_FLAT_FOLDER], "test": found[TRAIN_SOURCES_IN_FLAT_FOLDER:]}
+
+
+def n_background_domains(split: str, background_dir: str | Path | None = None) -> int:
+    """Number of background sources (domains) in a split.
+
+    :param split: ``"train"`` or ``"test"``
+    :param background_dir: a user's folder, or None for the built-in procedural banks
+    """
+    check_background_split(split)
+    if background_dir is None:
+        return len(PROCEDURAL_SEEDS[split])
+    return len(background_files(background_dir)[split])
