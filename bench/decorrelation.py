@@ -57,7 +57,7 @@ OFFICIAL_SOLVER = SGFDSettings.official().solver_settings()
 def train_domain_classifier(
     z: Tensor, domains: Tensor, steps: int, seed: int, stop_accuracy: float | None = None
 ) -> DomainClassifier:
-    """Adam on minibatches of 256 (sb3_sgfd.sgfd.saliency.train_classifier, SGFD's loop); with ``stop_accuracy``, it
+    """Adam on minibatches of 256 (sb3_sgfd.sgfd.functional.train_classifier, SGFD's loop); with ``stop_accuracy``, it
     stops at the first minibatch classified that well, as SGFD_SAC's classifier does at its threshold."""
     torch.manual_seed(seed)
     classifier = DomainClassifier(z.shape[1], N_DOMAINS)

@@ -68,9 +68,9 @@ POLICIES: dict[str, tuple[type, Callable[[], VecEnv], dict]] = {
 }
 
 #: Each phase held through SGFD's own settings (and the weighting's ``ready``: whether the weights have started).
-#: Steady: every accuracy above 0 reaches the least threshold, so a round scores the batch and trains not. Classifier
-#: and mixed: a classifier whose learning rate leaves its parameters as they are never reaches an accuracy of 1, so
-#: it trains on every round at its full cost (forward, backward, Adam step).
+#: Steady: every accuracy above 0 reaches the least threshold, so a round's step is masked off (its cost is that of a
+#: step: the decision is on the device). Classifier and mixed: a classifier whose learning rate leaves its
+#: parameters as they are never reaches an accuracy of 1, so it takes its step on every round.
 PHASE_SETTINGS: dict[str, dict[str, Any]] = {
     "steady": {"accuracy_threshold": 1e-6},
     "classifier": {"accuracy_threshold": 1.0, "classifier_lr": 1e-12},
@@ -136,11 +136,12 @@ def classifier_steps(model: SGFD_SAC) -> int:
 
 
 def check_phase(key: str, model: SGFD_SAC, first_update: int, steps_before: int) -> None:
-    """That the classifier trained on every update since ``first_update`` (steady: never), and the weights were on
-    (classifier phase: off)."""
+    """That the classifier trained on every update since ``first_update`` (classifier and mixed phases; in the steady
+    one its round is scored and masked off, at the same cost), and the weights were on (classifier phase: off)."""
     phase = next((phase for phase in PHASES if f" {phase} " in f" {key} "), "steady")
-    taken, wanted = classifier_steps(model) - steps_before, 0 if phase == "steady" else model._n_updates - first_update
-    assert taken == wanted, f"{key}: the classifier took {taken} steps where the phase holds {wanted}"
+    taken, updates = classifier_steps(model) - steps_before, model._n_updates - first_update
+    if phase != "steady":
+        assert taken == updates, f"{key}: the classifier took {taken} steps where the phase holds {updates}"
     model._log_figures()  # what the device still holds, into the logger
     weighted = "sgfd/weight_ess" in model.logger.name_to_value
     assert weighted == (phase != "classifier"), f"{key}: the weights were {'on' if weighted else 'off'}"

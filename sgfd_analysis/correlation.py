@@ -241,7 +241,7 @@ def _select_columns(names: list[str], features: list[str] | None, n_state_featur
 def train_domain_classifier(
     z: torch.Tensor, domains: torch.Tensor, n_domains: int, batch_size: int, generator: torch.Generator
 ) -> tuple[DomainClassifier, int]:
-    """A ``DomainClassifier`` trained as Algorithm 1 does (``sb3_sgfd.sgfd.saliency.train_classifier``):
+    """A ``DomainClassifier`` trained as Algorithm 1 does (``sb3_sgfd.sgfd.functional.train_classifier``):
     cross-entropy on random batches, until a batch is classified with accuracy >= 0.9 (``SGFD_SAC``'s threshold),
     at most ``MAX_CLASSIFIER_STEPS`` steps.
 

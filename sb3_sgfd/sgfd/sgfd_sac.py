@@ -38,10 +38,10 @@ class SGFD_SAC(EncoderSAC):
     actor losses. How the weights are computed is one of two readings (``reading``), each a
     :class:`sb3_sgfd.sgfd.weighting.SampleWeighting`:
 
-    - ``"paper"`` (:class:`sb3_sgfd.sgfd.paper_reading.PaperWeighting`): Algorithm 1 as printed, with this
+    - ``"paper"`` (:class:`sb3_sgfd.sgfd.weighting.PaperWeighting`): Algorithm 1 as printed, with this
       package's measured choices; the classifier trains from ``classifier_start`` while its accuracy is below
       ``accuracy_threshold``, and the weights start the first time it reaches it (until then this is SAC);
-    - ``"official"`` (:class:`sb3_sgfd.sgfd.official_reading.OfficialWeighting`): what the authors' code
+    - ``"official"`` (:class:`sb3_sgfd.sgfd.weighting.OfficialWeighting`): what the authors' code
       computes, which produced the published numbers: weights on the actor loss only from the first update, a
       memory of past batches, guided-backprop saliency, and an objective that keeps the weights close to uniform.
 

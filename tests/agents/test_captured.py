@@ -124,3 +124,23 @@ def test_a_masked_step_is_the_step_or_nothing(take):
         assert th.equal(got, expected)
     state = optimizers[0].state[layer.weight]
     assert take or (float(state["step"]) == 0 and not state["exp_avg"].any())
+
+
+@pytest.mark.slow
+def test_save_load_and_set_parameters_keep_the_compiled_update(tmp_path):
+    model = trained("SGFD official", compile_update=True, steps=10)
+    model.save(tmp_path / "model")
+    model.save_replay_buffer(tmp_path / "buffer")
+    loaded = type(model).load(tmp_path / "model", env=model.env)
+    loaded.load_replay_buffer(tmp_path / "buffer")
+    assert loaded.compile_update is True and loaded._captures_update()  # saved with the model
+    loaded.num_timesteps = model.num_timesteps
+    loaded.train(gradient_steps=5, batch_size=loaded.batch_size)
+    assert loaded._n_updates == 15 and all(th.isfinite(p).all() for p in loaded.policy.parameters())
+    # new parameters: the runner forgets its graphs, the optimisers are set up again, training goes on from them
+    given = {key: value.clone() for key, value in model.policy.state_dict().items()}
+    loaded.set_parameters(model.get_parameters())
+    assert not loaded._optimizers_prepared and not loaded._update.graphs
+    assert all(th.equal(value, given[key]) for key, value in loaded.policy.state_dict().items())
+    loaded.train(gradient_steps=5, batch_size=loaded.batch_size)
+    assert loaded._optimizers_prepared and all(th.isfinite(p).all() for p in loaded.policy.parameters())
