@@ -145,6 +145,8 @@ class CapturedUpdate:
         warmup: int = WARMUP_CALLS,
     ) -> None:
         self.device = th.device(device)
+        #: The batch goes through static inputs (on any device: on the CPU the same path runs, without graphs).
+        self.static = capture
         self.capture = capture and self.device.type == "cuda"
         self.generators = generators
         self.warmup = warmup
@@ -159,8 +161,8 @@ class CapturedUpdate:
         self._stream: Any = None
 
     def input(self, name: str, value: Tensor) -> Tensor:
-        """``value`` as the graphs read it: copied into the static tensor ``name`` when capturing, else as it is."""
-        if not self.capture:
+        """``value`` as the graphs read it: copied into the static tensor ``name`` (when captured), else as it is."""
+        if not self.static:
             return value
         static = self.static_inputs.get(name)
         if static is None or static.shape != value.shape or static.dtype != value.dtype:
@@ -172,7 +174,7 @@ class CapturedUpdate:
 
     def inputs(self, prefix: str, values: Any) -> Any:
         """A named tuple of tensors (a replay batch) with each tensor field through :meth:`input`."""
-        if not self.capture:
+        if not self.static:
             return values
         fields = {
             name: self.input(f"{prefix}.{name}", value)
@@ -249,7 +251,7 @@ def prepare_optimizers(optimizers: Sequence[th.optim.Optimizer], captured: bool)
             lr = float(group["lr"])
             group["fused"], group["foreach"] = (True, False) if captured else (None, None)
             if adam:
-                group["capturable"] = captured
+                group["capturable"] = captured and device.type == "cuda"  # fused steps graph-safe on CUDA only then
                 group["lr"] = th.tensor(lr, device=device) if captured else lr
             for param in group["params"]:
                 state = optimizer.state.get(param, {})

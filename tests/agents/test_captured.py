@@ -8,7 +8,7 @@ import pytest
 import torch as th
 from torch.utils._python_dispatch import TorchDispatchMode
 
-from sb3_sgfd.common.captured import WARMUP_CALLS, DeviceFigures, masked_step
+from sb3_sgfd.common.captured import WARMUP_CALLS, DeviceFigures, masked_step, prepare_optimizers, set_learning_rate
 from tests.agents.tiny import AGENTS
 
 STEPS = 45
@@ -144,3 +144,32 @@ def test_save_load_and_set_parameters_keep_the_compiled_update(tmp_path):
     assert all(th.equal(value, given[key]) for key, value in loaded.policy.state_dict().items())
     loaded.train(gradient_steps=5, batch_size=loaded.batch_size)
     assert loaded._optimizers_prepared and all(th.isfinite(p).all() for p in loaded.policy.parameters())
+
+
+def test_optimisers_set_up_for_a_captured_update_step_as_before_and_back():
+    # what a captured update does to the optimisers (on CUDA also capturable), and back to SB3's when eager
+    th.manual_seed(0)
+    layers = [th.nn.Linear(3, 2) for _ in range(2)]
+    layers[1].load_state_dict(layers[0].state_dict())
+    optimizers = [th.optim.Adam(layer.parameters(), lr=0.1) for layer in layers]
+    extra = th.optim.SGD(th.nn.Linear(2, 1).parameters(), lr=0.1, momentum=0.9)
+
+    def step(index: int) -> None:
+        optimizers[index].zero_grad()
+        layers[index](th.ones(4, 3)).square().sum().backward()
+        optimizers[index].step()
+
+    step(0), step(1)
+    prepare_optimizers([optimizers[1], extra], captured=True)
+    group = optimizers[1].param_groups[0]
+    assert group["fused"] and th.is_tensor(group["lr"]) and th.is_tensor(optimizers[1].state[layers[1].weight]["step"])
+    assert extra.param_groups[0]["fused"] and not th.is_tensor(extra.param_groups[0]["lr"])
+    set_learning_rate(optimizers[1], 0.05)
+    set_learning_rate(optimizers[0], 0.05)
+    assert th.is_tensor(group["lr"]) and abs(float(group["lr"]) - 0.05) < 1e-8  # filled in place, where a graph reads
+    step(0), step(1)
+    for a, b in zip(layers[0].parameters(), layers[1].parameters(), strict=True):
+        th.testing.assert_close(a, b)  # fused or not, the same Adam
+    prepare_optimizers([optimizers[1]], captured=False)
+    assert group["fused"] is None and abs(group["lr"] - 0.05) < 1e-8 and not group["capturable"]
+    step(1)
