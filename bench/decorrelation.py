@@ -32,22 +32,18 @@ import gymnasium as gym
 import torch
 from torch import Tensor, nn
 
-from sb3_sgfd.sgfd.decorrelation import (
-    WeightMemory,
-    effective_sample_size,
-    learn_sample_weights,
-    solve_weights,
-    weighted_pearson,
-)
-from sb3_sgfd.sgfd.official_reading import OfficialClassifier, solve_official_weights
-from sb3_sgfd.sgfd.saliency import (
-    DomainClassifier,
+from sb3_sgfd.sgfd.decorrelation import WeightMemory, solve_official_weights, solve_weights
+from sb3_sgfd.sgfd.functional import (
     classifier_accuracy,
+    effective_sample_size,
     feature_probabilities,
+    learn_sample_weights,
     saliency_map,
     train_classifier,
+    weighted_pearson,
 )
 from sb3_sgfd.sgfd.settings import SGFDSettings
+from sb3_sgfd.sgfd.weighting import DomainClassifier, OfficialClassifier
 from sgfd_analysis.correlation import collect_states, standardised_sample, state_names
 from sgfd_analysis.correlation import train_domain_classifier as correlation_classifier
 from sgfd_analysis.synthetic import DomainBatch, ScaledLogits, make_domain_batch
@@ -61,7 +57,7 @@ OFFICIAL_SOLVER = SGFDSettings.official().solver_settings()
 def train_domain_classifier(
     z: Tensor, domains: Tensor, steps: int, seed: int, stop_accuracy: float | None = None
 ) -> DomainClassifier:
-    """Adam on minibatches of 256 (sb3_sgfd.sgfd.saliency.train_classifier, SGFD's loop); with ``stop_accuracy``, it
+    """Adam on minibatches of 256 (sb3_sgfd.sgfd.functional.train_classifier, SGFD's loop); with ``stop_accuracy``, it
     stops at the first minibatch classified that well, as SGFD_SAC's classifier does at its threshold."""
     torch.manual_seed(seed)
     classifier = DomainClassifier(z.shape[1], N_DOMAINS)

@@ -20,10 +20,19 @@ from typing import Any
 MOVED: dict[str, tuple[str, ...]] = {
     "sb3_sgfd.sac": ("sb3_sgfd.sgfd.sgfd_sac",),
     "sb3_sgfd.weighting": ("sb3_sgfd.sgfd.weighting",),
-    "sb3_sgfd.weighting_paper": ("sb3_sgfd.sgfd.paper_reading",),
-    "sb3_sgfd.weighting_official": ("sb3_sgfd.sgfd.official_reading",),
-    "sb3_sgfd.reweighting": ("sb3_sgfd.sgfd.decorrelation", "sb3_sgfd.sgfd.checks", "sb3_sgfd.common.validation"),
-    "sb3_sgfd.saliency": ("sb3_sgfd.sgfd.saliency",),
+    "sb3_sgfd.weighting_paper": ("sb3_sgfd.sgfd.weighting", "sb3_sgfd.sgfd.decorrelation"),
+    "sb3_sgfd.weighting_official": ("sb3_sgfd.sgfd.weighting", "sb3_sgfd.sgfd.decorrelation"),
+    "sb3_sgfd.reweighting": (
+        "sb3_sgfd.sgfd.functional",
+        "sb3_sgfd.sgfd.decorrelation",
+        "sb3_sgfd.sgfd.checks",
+        "sb3_sgfd.common.validation",
+    ),
+    "sb3_sgfd.saliency": ("sb3_sgfd.sgfd.weighting", "sb3_sgfd.sgfd.functional"),
+    # 0.1.x's sgfd/ files before the weighting was gathered in one module
+    "sb3_sgfd.sgfd.saliency": ("sb3_sgfd.sgfd.weighting", "sb3_sgfd.sgfd.functional"),
+    "sb3_sgfd.sgfd.paper_reading": ("sb3_sgfd.sgfd.weighting", "sb3_sgfd.sgfd.functional"),
+    "sb3_sgfd.sgfd.official_reading": ("sb3_sgfd.sgfd.weighting", "sb3_sgfd.sgfd.decorrelation"),
     "sb3_sgfd.bisimulation": ("sb3_sgfd.common.dynamics", "sb3_sgfd.dbc.losses", "sb3_sgfd.ambs.losses"),
     "sb3_sgfd.temporal": ("sb3_sgfd.ted.losses",),
     "sb3_sgfd.attribution": ("sb3_sgfd.sgqn.attribution",),

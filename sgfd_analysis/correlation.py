@@ -31,8 +31,15 @@ from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global fig
 from matplotlib.patches import Rectangle
 
 import sgfd_envs
-from sb3_sgfd.sgfd.decorrelation import effective_sample_size, learn_sample_weights, weighted_pearson
-from sb3_sgfd.sgfd.saliency import DomainClassifier, classifier_accuracy, feature_probabilities, train_classifier
+from sb3_sgfd.sgfd.functional import (
+    classifier_accuracy,
+    effective_sample_size,
+    feature_probabilities,
+    learn_sample_weights,
+    train_classifier,
+    weighted_pearson,
+)
+from sb3_sgfd.sgfd.weighting import DomainClassifier
 from sgfd_zoo.arguments import ZooError
 
 WEIGHTINGS = ("raw", "global", "sgfd")
@@ -234,7 +241,7 @@ def _select_columns(names: list[str], features: list[str] | None, n_state_featur
 def train_domain_classifier(
     z: torch.Tensor, domains: torch.Tensor, n_domains: int, batch_size: int, generator: torch.Generator
 ) -> tuple[DomainClassifier, int]:
-    """A ``DomainClassifier`` trained as Algorithm 1 does (``sb3_sgfd.sgfd.saliency.train_classifier``):
+    """A ``DomainClassifier`` trained as Algorithm 1 does (``sb3_sgfd.sgfd.functional.train_classifier``):
     cross-entropy on random batches, until a batch is classified with accuracy >= 0.9 (``SGFD_SAC``'s threshold),
     at most ``MAX_CLASSIFIER_STEPS`` steps.
 

@@ -30,8 +30,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 from stable_baselines3.sac import SAC
 
 import sgfd_envs
-from sb3_sgfd.sgfd.decorrelation import effective_sample_size
-from sb3_sgfd.sgfd.saliency import classifier_accuracy
+from sb3_sgfd.sgfd.functional import classifier_accuracy, effective_sample_size
 from sgfd_zoo.algos import column_name
 from sgfd_zoo.arguments import ZooError, check_env_id
 from sgfd_zoo.experiment import wrap_like_training

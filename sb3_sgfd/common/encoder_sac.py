@@ -1,24 +1,24 @@
 """EncoderSAC: SB3's SAC with the machinery every visual-RL agent of the SGFD paper's tables shares.
 
-- the encoder is shared by actor and critic and trained by the critic (``sb3_sgfd.common.policies.SGFDPolicy``), and
-  the critic target's encoder has its own soft-update rate (``encoder_tau``, DBC/AMBS: 0.05);
+- the encoder is shared by actor and critic and trained by the critic (``SharedEncoderPolicy``), and the critic
+  target's encoder has its own soft-update rate (``encoder_tau``, DBC/AMBS: 0.05);
 - random-shift augmentation of the critic's inputs (DrQ): one view (RAD, SGQN, TED), or two with the target
   and the critic loss averaged over them (DrQ, AMBS);
 - the actor and the entropy coefficient learn every ``actor_update_interval`` steps, gradient norms are
   clipped (``max_grad_norm``, AMBS: 40);
 - an optional representation objective (``representation=``: DBC, AMBS, TED or SGQN, see
   :mod:`sb3_sgfd.common.representation`), and per-sample weights of the critic and actor losses (``_batch_weights``,
-  which :class:`sb3_sgfd.SGFD_SAC` overrides).
+  which a sample weighting overrides).
 
-``EncoderSAC.train`` is a twin of ``SAC.train``: the lines marked ``# +`` are what it adds. With its defaults
-(no augmentation, no objective, ``encoder_tau = tau``, actor every step, no clipping) it takes SB3 SAC's steps
-bit for bit (tested).
+``EncoderSAC.train`` (with ``_gradient_step``, its loop's body) is a twin of ``SAC.train``: the lines marked ``# +``
+are what it adds. With its defaults (no augmentation, no objective, ``encoder_tau = tau``, actor every step, no
+clipping) it takes SB3 SAC's steps bit for bit (tested). With ``compile_update`` the same body is captured
+(:mod:`sb3_sgfd.common.captured`).
 """
 
 from __future__ import annotations
 
 import warnings
-from collections import defaultdict
 from collections.abc import Mapping
 from typing import Any, ClassVar, cast
 
@@ -27,7 +27,7 @@ import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.preprocessing import is_image_space, preprocess_obs
+from stable_baselines3.common.preprocessing import preprocess_obs
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.sac import SAC
@@ -36,6 +36,7 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_sgfd.common.augmentation import random_shift
 from sb3_sgfd.common.buffer_setup import N_STEPS_IGNORED_WARNING, DomainBufferMixin
 from sb3_sgfd.common.buffers import DomainReplayBuffer
+from sb3_sgfd.common.captured import CapturedUpdateMixin, StepPlan
 from sb3_sgfd.common.policies import (
     CnnPolicy,
     EncoderMlpPolicy,
@@ -43,13 +44,15 @@ from sb3_sgfd.common.policies import (
     MultiInputPolicy,
     SGFDPolicy,
     SharedEncoderPolicy,
+    check_encoder_setup,
+    critic_and_features,
 )
 from sb3_sgfd.common.representation import REPRESENTATIONS, Batch, Representation, make_representation
-from sb3_sgfd.common.utils import finite, means_of, polyak_pairs, weighted_mean
+from sb3_sgfd.common.utils import polyak_pairs, weighted_mean
 from sb3_sgfd.common.validation import check_encoder_sac_arguments, check_sac_arguments
 
 
-class EncoderSAC(DomainBufferMixin, SAC):
+class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
     """
     SAC with a critic-trained shared encoder, augmentation, an encoder target, and the hooks an encoder
     objective (``representation``) and a sample weighting need. Takes the arguments of SB3's :class:`SAC`
@@ -71,6 +74,9 @@ class EncoderSAC(DomainBufferMixin, SAC):
     :param actor_reuses_features: The actor's Q on the critic's encoder features of the step, detached (no second
         encoder pass, as the authors' codes detach the encoder); False: SB3's, the batch encoded again after the
         critic's step (the same values on states, where the features are the observations)
+    :param compile_update: Run each gradient step as captured work (:mod:`sb3_sgfd.common.captured`): on CUDA one
+        CUDA-graph replay per step plan with fused optimisers, the figures read once per log interval, what fuses
+        compiled; None: on CUDA only; False: SB3's eager step
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -125,6 +131,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
         representation: str | None = None,
         representation_kwargs: dict[str, Any] | None = None,
         actor_reuses_features: bool = True,
+        compile_update: bool | None = None,
         _init_setup_model: bool = True,
     ):
         # the objective checks its own arguments when it is built (in _setup_model: SB3's load builds no objective here)
@@ -133,7 +140,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
         if self.fixed_representation is not None and representation != self.fixed_representation:
             raise ValueError(
                 f"{type(self).__name__} trains the {self.fixed_representation!r} representation, got "
-                f"representation={representation!r} (SGFD_SAC takes any)"
+                f"representation={representation!r} (EncoderSAC takes any)"
             )
         self.actor_update_interval = actor_update_interval
         self.encoder_tau = encoder_tau
@@ -145,6 +152,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
         self.representation = representation
         self.representation_kwargs = dict(representation_kwargs or {})
         self.actor_reuses_features = actor_reuses_features
+        self.compile_update = compile_update
         super().__init__(
             policy,
             env,
@@ -205,24 +213,7 @@ class EncoderSAC(DomainBufferMixin, SAC):
         if self.ent_coef_optimizer is not None and (self.ent_coef_lr is not None or self.ent_coef_beta != 0.9):
             lr = self.lr_schedule(1) if self.ent_coef_lr is None else self.ent_coef_lr
             self.ent_coef_optimizer = th.optim.Adam([self.log_ent_coef], lr=lr, betas=(self.ent_coef_beta, 0.999))  # type: ignore[arg-type]  # not None with the optimizer
-        scaled = not self.policy.normalize_images
-        if self.augmentation_views and not is_image_space(self.observation_space, normalized_image=scaled):
-            raise ValueError(
-                f"augmentation_views={self.augmentation_views} shifts images, but the observations are "
-                f"{self.observation_space}; use augmentation_views=0 on states"
-            )
-        if (representation_model is not None or self.augmentation_views) and not isinstance(self.policy, SGFDPolicy):
-            raise ValueError(
-                f"{type(self).__name__} with a representation or augmentation needs a policy whose encoder the "
-                "critic trains (sb3_sgfd.common.policies.SGFDPolicy and its subclasses), got "
-                f"{type(self.policy).__name__}"
-            )
-        encoder = self.critic.features_extractor
-        if representation_model is not None and not any(True for _ in encoder.parameters()):
-            raise ValueError(
-                f"the {self.representation!r} representation trains the encoder, but {type(encoder).__name__} has "
-                "no parameters: use policy='EncoderMlpPolicy' (states) or 'CnnPolicy' (pixels)"
-            )
+        check_encoder_setup(self, representation_model is not None)
         # Augmentation and the objectives draw from generators of their own, seeded from the model's seed:
         # SAC's random streams stay those of SB3's SAC.
         seeds = self._derived_seeds()
@@ -262,128 +253,129 @@ class EncoderSAC(DomainBufferMixin, SAC):
 
         # Update learning rate according to lr schedule
         self._update_learning_rate(optimizers)
-
-        ent_coef_losses, ent_coefs = [], []
-        actor_losses, critic_losses = [], []
-        self._stats: dict[str, list[float | th.Tensor]] = defaultdict(list)  # +
+        self._prepare_update()  # + the optimisers and figures of the eager or captured update
 
         for gradient_step in range(gradient_steps):
-            # Sample replay buffer
+            # Sample replay buffer (+ copied into the captured graphs' static inputs)
             replay_data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
-            # For n-step replay, discount factor is gamma**n_steps (when no early termination)
-            discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
-            update_index = self._n_updates + gradient_step  # +
+            replay_data = self._update.inputs("batch", replay_data)  # +
+            # + the host's decisions for this step (which parts learn): one captured graph per plan
+            plan = self._plan(self._n_updates + gradient_step, gradient_step)
             # + views of the observations for the critic (the first also the actor's), of the next ones for its target
-            observations = self.augment(replay_data.observations)
-            next_observations = self.augment(replay_data.next_observations)
-            # + the actor and the entropy coefficient learn every `actor_update_interval` steps
-            update_actor = update_index % self.actor_update_interval == 0
-
-            # Get current Q-values estimates for each critic network
-            # using action from the replay buffer (+ per view, each with the encoder features it came from; + first,
-            # so that the actor reads the critic's features of the batch instead of encoding it again)
-            critic_outputs = [self._critic_and_features(obs, replay_data.actions) for obs in observations]
-            current_q_values = [q_values for q_values, _ in critic_outputs]
-            z = critic_outputs[0][1].detach()  # +
-
-            # We need to sample because `log_std` may have changed between two gradient steps
-            if self.use_sde:
-                self.actor.reset_noise()
-
-            if update_actor:
-                # Action by the current actor for the sampled state
-                actions_pi, log_prob = self._actor_action_log_prob(observations[0], z)
-                log_prob = log_prob.reshape(-1, 1)
-
-            ent_coef_loss = None
-            if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
-                # Important: detach the variable from the graph
-                # so we don't change it with other losses
-                # see https://github.com/rail-berkeley/softlearning/issues/60
-                ent_coef = th.exp(self.log_ent_coef.detach())
-                assert isinstance(self.target_entropy, float)
-                if update_actor:
-                    ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
-                    ent_coef_losses.append(ent_coef_loss.item())
-            else:
-                ent_coef = self.ent_coef_tensor
-
-            ent_coefs.append(ent_coef.item())
-
-            # Optimize entropy coefficient, also called
-            # entropy temperature or alpha in the paper
-            if ent_coef_loss is not None and self.ent_coef_optimizer is not None:
-                self.ent_coef_optimizer.zero_grad()
-                ent_coef_loss.backward()
-                self.ent_coef_optimizer.step()
-
-            with th.no_grad():
-                # + the target averaged over the views of the next observation (one view: SAC's target)
-                target_q_values = sum(
-                    self._target_q_values(next_obs, replay_data, ent_coef, discounts) for next_obs in next_observations
-                ) / len(next_observations)
-
-            # + per-sample weights of the critic and actor losses (SGFD) from the first view's features; None = SAC
-            critic_weights, actor_weights = self._batch_weights(replay_data, z, batch_size, update_index, update_actor)
-
-            # Compute critic loss  (+ mean over views, weighted per sample)
-            critic_loss = sum(
-                0.5 * sum(weighted_mean((current_q - target_q_values) ** 2, critic_weights) for current_q in view)
-                for view in current_q_values
-            ) / len(current_q_values)
-            # + the objective's term of the critic loss (SGQN's consistency)
-            if self.representation_model is not None:
-                extra = self.representation_model.critic_loss(
-                    self, observations[0], replay_data.actions, current_q_values[0]
-                )
-                critic_loss = critic_loss if extra is None else critic_loss + extra
-            assert isinstance(critic_loss, th.Tensor)  # for type checker
-            critic_losses.append(finite(critic_loss.item(), "critic loss", update_index))
-
-            # Optimize the critic
-            self.critic.optimizer.zero_grad()
-            critic_loss.backward()
-            self._clip_grad_norm(self.critic.optimizer)  # +
-            self.critic.optimizer.step()
-
-            # + the representation objective's own step (DBC, AMBS, TED, SGQN)
-            if self.representation_model is not None:
-                batch = Batch(replay_data, observations, next_observations, update_index)
-                for key, value in self.representation_model.update(self, batch).items():
-                    self._stats[f"{self.representation}/{key}"].append(value)
-
-            if update_actor:
-                # Min over all critic networks (+ on this step's features of the batch: no second encoder pass)
-                q_values_pi = th.cat(self._actor_q_values(observations[0], z, actions_pi), dim=1)
-                min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
-                actor_loss = weighted_mean(ent_coef * log_prob - min_qf_pi, actor_weights)  # + weighted
-                actor_losses.append(finite(actor_loss.item(), "actor loss", update_index))
-
-                # Optimize the actor
-                self.actor.optimizer.zero_grad()
-                actor_loss.backward()
-                self._clip_grad_norm(self.actor.optimizer)  # +
-                self.actor.optimizer.step()
-
-            # Update target networks
-            if gradient_step % self.target_update_interval == 0:
-                # + the encoder at its own rate
-                polyak_pairs(self._head_pairs, self.tau)
-                polyak_pairs(self._encoder_pairs, self.tau if self.encoder_tau is None else self.encoder_tau)
-                # Copy running stats, see GH issue #996
-                polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
+            # (without augmentation, the batch itself: nothing to capture)
+            views = self._update.run if self.augmentation_views else lambda _, piece, *args: piece(*args)
+            observations, next_observations = views("views", self._views, replay_data)
+            # + what the weighting needs the host for before the step (SGFD's code reading: its classifier's round)
+            self._before_gradient_step(replay_data, observations, plan)
+            self._update.run(plan, self._gradient_step, replay_data, observations, next_observations, plan)  # +
 
         self._n_updates += gradient_steps
 
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/ent_coef", np.mean(ent_coefs))
-        if len(actor_losses) > 0:
-            self.logger.record("train/actor_loss", np.mean(actor_losses))
-        self.logger.record("train/critic_loss", np.mean(critic_losses))
-        if len(ent_coef_losses) > 0:
-            self.logger.record("train/ent_coef_loss", np.mean(ent_coef_losses))
-        for key, mean in zip(self._stats, means_of(self._stats.values(), self.device), strict=True):  # + one read
-            self.logger.record(key, mean)
+        self._after_train()  # + the figures read (once per log interval when captured) and the finiteness check
+
+    def _gradient_step(
+        self, replay_data: Any, observations: list[th.Tensor], next_observations: list[th.Tensor], plan: StepPlan
+    ) -> None:
+        """One gradient step: the body of ``SAC.train``'s loop, with the lines marked ``# +`` added (its figures go to
+        the device, the host's decisions come in ``plan``); captured, this is one CUDA graph per plan."""
+        # For n-step replay, discount factor is gamma**n_steps (when no early termination)
+        discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
+
+        # Get current Q-values estimates for each critic network
+        # using action from the replay buffer (+ per view, each with the encoder features it came from; + first,
+        # so that the actor reads the critic's features of the batch instead of encoding it again)
+        critic_outputs = [critic_and_features(self.critic, obs, replay_data.actions) for obs in observations]
+        current_q_values = [q_values for q_values, _ in critic_outputs]
+        z = critic_outputs[0][1].detach()  # +
+
+        # We need to sample because `log_std` may have changed between two gradient steps
+        if self.use_sde:
+            self.actor.reset_noise()
+
+        if plan.update_actor:
+            # Action by the current actor for the sampled state
+            actions_pi, log_prob = self._actor_action_log_prob(observations[0], z)
+            log_prob = log_prob.reshape(-1, 1)
+
+        ent_coef_loss = None
+        if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+            # Important: detach the variable from the graph
+            # so we don't change it with other losses
+            # see https://github.com/rail-berkeley/softlearning/issues/60
+            ent_coef = th.exp(self.log_ent_coef.detach())
+            assert isinstance(self.target_entropy, float)
+            if plan.update_actor:
+                ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
+                self.record("train/ent_coef_loss", ent_coef_loss)
+        else:
+            ent_coef = self.ent_coef_tensor
+
+        self.record("train/ent_coef", ent_coef)
+
+        # Optimize entropy coefficient, also called
+        # entropy temperature or alpha in the paper
+        if ent_coef_loss is not None and self.ent_coef_optimizer is not None:
+            self.ent_coef_optimizer.zero_grad()
+            ent_coef_loss.backward()
+            self.ent_coef_optimizer.step()
+
+        with th.no_grad():
+            # + the target averaged over the views of the next observation (one view: SAC's target)
+            target_q_values = sum(
+                self._target_q_values(next_obs, replay_data, ent_coef, discounts) for next_obs in next_observations
+            ) / len(next_observations)
+
+        # + per-sample weights of the critic and actor losses (SGFD) from the first view's features; None = SAC
+        critic_weights, actor_weights = self._batch_weights(replay_data, z, plan)
+
+        # Compute critic loss  (+ mean over views, weighted per sample)
+        critic_loss = sum(
+            0.5 * sum(weighted_mean((current_q - target_q_values) ** 2, critic_weights) for current_q in view)
+            for view in current_q_values
+        ) / len(current_q_values)
+        # + the objective's term of the critic loss (SGQN's consistency)
+        if self.representation_model is not None:
+            extra = self.representation_model.critic_loss(
+                self, observations[0], replay_data.actions, current_q_values[0]
+            )
+            critic_loss = critic_loss if extra is None else critic_loss + extra
+        assert isinstance(critic_loss, th.Tensor)  # for type checker
+        self.record("train/critic_loss", critic_loss, check_finite="critic loss")
+
+        # Optimize the critic
+        self.critic.optimizer.zero_grad()
+        critic_loss.backward()
+        self._clip_grad_norm(self.critic.optimizer)  # +
+        self.critic.optimizer.step()
+
+        # + the representation objective's own step (DBC, AMBS, TED, SGQN)
+        if self.representation_model is not None:
+            batch = Batch(replay_data, observations, next_observations, plan.objective)
+            for key, value in self.representation_model.update(self, batch).items():
+                self.record(f"{self.representation}/{key}", value)
+
+        if plan.update_actor:
+            # Min over all critic networks (+ on this step's features of the batch: no second encoder pass)
+            q_values_pi = th.cat(self._actor_q_values(observations[0], z, actions_pi), dim=1)
+            min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
+            actor_loss = weighted_mean(ent_coef * log_prob - min_qf_pi, actor_weights)  # + weighted
+            self.record("train/actor_loss", actor_loss, check_finite="actor loss")
+
+            # Optimize the actor
+            self.actor.optimizer.zero_grad()
+            actor_loss.backward()
+            self._clip_grad_norm(self.actor.optimizer)  # +
+            self.actor.optimizer.step()
+
+        # Update target networks
+        if plan.update_target:
+            # + the encoder at its own rate
+            polyak_pairs(self._head_pairs, self.tau)
+            polyak_pairs(self._encoder_pairs, self.tau if self.encoder_tau is None else self.encoder_tau)
+            # Copy running stats, see GH issue #996
+            polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
+        self._figures.end_update()  # +
 
     def _target_q_values(
         self, next_observations: th.Tensor, replay_data: Any, ent_coef: th.Tensor, discounts: th.Tensor | float
@@ -399,11 +391,13 @@ class EncoderSAC(DomainBufferMixin, SAC):
         # td error + entropy term
         return replay_data.rewards + (1 - replay_data.dones) * discounts * next_q_values
 
-    def augment(self, observations: th.Tensor) -> list[th.Tensor]:
-        """``augmentation_views`` random shifts of a batch of images, or the batch itself without augmentation.
+    def _views(self, replay_data: Any) -> tuple[list[th.Tensor], list[th.Tensor]]:
+        """The augmented views of a batch's observations and of its next observations (``augment`` of each)."""
+        return self.augment(replay_data.observations), self.augment(replay_data.next_observations)
 
-        :param observations: (n, C, H, W) images as the replay buffer returns them
-        """
+    def augment(self, observations: th.Tensor) -> list[th.Tensor]:
+        """``augmentation_views`` random shifts of a batch of (n, C, H, W) images as the replay buffer returns them,
+        or the batch itself without augmentation."""
         if not self.augmentation_views:
             return [observations]
         return [
@@ -411,44 +405,43 @@ class EncoderSAC(DomainBufferMixin, SAC):
             for _ in range(self.augmentation_views)
         ]
 
-    def _critic_and_features(
-        self, observations: th.Tensor, actions: th.Tensor
-    ) -> tuple[tuple[th.Tensor, ...], th.Tensor]:
-        """``self.critic(observations, actions)``, as SB3's ContinuousCritic computes it (its encoder learning
-        through it), and the encoder features it computed: the weights reuse them instead of encoding the
-        batch a second time (on pixels, the encoder is a large part of a step).
-        """
-        with th.set_grad_enabled(not self.critic.share_features_extractor):
-            features = self.critic.extract_features(observations, self.critic.features_extractor)
-        q_input = th.cat([features, actions], dim=1)
-        return tuple(q_net(q_input) for q_net in self.critic.q_networks), features
-
     def _batch_weights(
-        self, replay_data: Any, z: th.Tensor, batch_size: int, update_index: int, update_actor: bool
+        self, replay_data: Any, z: th.Tensor, plan: StepPlan
     ) -> tuple[th.Tensor | None, th.Tensor | None]:
-        """Per-sample weights (n, 1) of the critic and actor losses; None: unweighted (SAC). SGFD_SAC overrides it.
-
-        :param replay_data: the replay samples
-        :param z: the critic's encoder features of the first observation view (what the critic and actor train
-            on), detached
-        :param batch_size: the batch size
-        :param update_index: index of this gradient step over the run
-        :param update_actor: whether the actor learns at this step (its weights are used only then)
-        """
+        """Per-sample weights (n, 1) of the critic and actor losses from the critic's (detached) features ``z`` of
+        the first view; None: unweighted (SAC). A sample weighting overrides it."""
         return None, None
+
+    def _before_gradient_step(self, replay_data: Any, observations: list[th.Tensor], plan: StepPlan) -> None:
+        """What a sample weighting does before the step where it needs the host (a decision, fresh batches), given
+        the batch and its views. Nothing here."""
+
+    def _plan(self, update_index: int, gradient_step: int) -> StepPlan:
+        """What the host decides for the step (its index over the run, and in this ``train`` call, which SAC's target
+        updates count): each part whose Python code branches on the update says so here, so that one captured graph
+        per plan replays exactly what the eager step would run."""
+        objective = () if self.representation_model is None else self.representation_model.plan(update_index)
+        return StepPlan(
+            update_actor=update_index % self.actor_update_interval == 0,
+            update_target=gradient_step % self.target_update_interval == 0,
+            objective=objective,
+            weighting=self._weighting_plan(update_index, update_index % self.actor_update_interval == 0),
+        )
+
+    def _weighting_plan(self, update_index: int, update_actor: bool) -> tuple:
+        """A sample weighting's share of the plan (none here)."""
+        return ()
 
     def _actor_action_log_prob(self, observations: th.Tensor, z: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
         """The actor's actions and their log-probabilities for the batch, from the critic's features z of it when
         the actor reads the critic's encoder (the same values SB3's actor computes, without a second pass)."""
         if self._actor_reads_critic_features:
-            return cast(SGFDPolicy, self.policy).actor.action_log_prob_of_features(z)  # self.actor is its actor
+            return cast(SharedEncoderPolicy, self.policy).actor.action_log_prob_of_features(z)
         return self.actor.action_log_prob(observations)
 
     def _actor_q_values(self, observations: th.Tensor, z: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
-        """The critic's Q of the actor's actions. With ``actor_reuses_features``, on the critic's (detached)
-        features of this step: the authors' codes evaluate it with the encoder detached, and the features are
-        already computed; else SB3's, the batch encoded again by the critic's updated encoder, whose gradient the
-        actor's optimiser then throws away."""
+        """The critic's Q of the actor's actions: with ``actor_reuses_features`` on the critic's (detached) features of
+        this step, as the authors' codes (the encoder detached); else SB3's, the batch encoded again."""
         if self.actor_reuses_features and self._actor_reads_critic_features:
             q_input = th.cat([z, actions], dim=1)
             return tuple(q_net(q_input) for q_net in self.critic.q_networks)
@@ -456,8 +449,8 @@ class EncoderSAC(DomainBufferMixin, SAC):
 
     @property
     def _actor_reads_critic_features(self) -> bool:
-        # SGFDPolicy: one encoder, the critic's, which the actor reads detached (SB3's own SAC policies: not so).
-        return isinstance(self.policy, SGFDPolicy)
+        # one encoder, the critic's, which the actor reads detached (SB3's own SAC policies: not so)
+        return isinstance(self.policy, SharedEncoderPolicy)
 
     def _clip_grad_norm(self, optimizer: th.optim.Optimizer) -> None:
         """Clip the gradient norm of the parameters ``optimizer`` steps (the actor's exclude the shared encoder)."""
@@ -476,18 +469,25 @@ class EncoderSAC(DomainBufferMixin, SAC):
 
     def generators(self) -> dict[str, th.Generator]:
         """The generators this algorithm draws from beside the global ones, by name: what a checkpoint saves so
-        that a resumed run continues their streams (``sgfd_zoo.runs.training_state``)."""
+        that a resumed run continues their streams."""
         generators = {"augmentation": self._augment_generator}
         if self.representation_model is not None:
             generators["representation"] = self.representation_model.generator
         return generators
 
-    def record(self, key: str, value: float | th.Tensor) -> None:
-        """Log a figure of this gradient step; ``train`` logs the mean over its steps."""
-        self._stats[key].append(value)
+    def _update_optimizers(self) -> list[th.optim.Optimizer]:
+        """Every optimiser a gradient step steps (a sample weighting adds its own)."""
+        optimizers = [self.actor.optimizer, self.critic.optimizer]
+        if self.ent_coef_optimizer is not None:
+            optimizers.append(self.ent_coef_optimizer)
+        if self.representation_model is not None:
+            optimizers += [
+                getattr(self.representation_model, name) for name in self.representation_model.optimizer_names()
+            ]
+        return optimizers
 
     def _excluded_save_params(self) -> list[str]:
-        excluded = ["representation_model", "_augment_generator", "_stats", "_encoder_pairs", "_head_pairs"]
+        excluded = ["representation_model", "_augment_generator", "_encoder_pairs", "_head_pairs"]
         return [*super()._excluded_save_params(), *excluded]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:

@@ -16,6 +16,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.distributions import SquashedDiagGaussianDistribution
+from stable_baselines3.common.policies import ContinuousCritic
 from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, CombinedExtractor, FlattenExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
@@ -250,3 +251,43 @@ class EncoderMlpPolicy(SharedEncoderPolicy):
 def reads_images(extractor_class: type[BaseFeaturesExtractor]) -> bool:
     """Whether an encoder class takes SB3's ``normalized_image`` (it reads images, and checks that they are)."""
     return "normalized_image" in inspect.signature(extractor_class.__init__).parameters
+
+
+def critic_and_features(
+    critic: ContinuousCritic, observations: th.Tensor, actions: th.Tensor
+) -> tuple[tuple[th.Tensor, ...], th.Tensor]:
+    """``critic(observations, actions)``, as SB3's ContinuousCritic computes it (its encoder learning through it),
+    and the encoder features it computed: a sample weighting and the actor reuse them instead of encoding the batch a
+    second time (on pixels, the encoder is a large part of a step)."""
+    with th.set_grad_enabled(not critic.share_features_extractor):
+        features = critic.extract_features(observations, critic.features_extractor)
+    q_input = th.cat([features, actions], dim=1)
+    return tuple(q_net(q_input) for q_net in critic.q_networks), features
+
+
+def check_encoder_setup(model: Any, trains_encoder: bool) -> None:
+    """Refuse, in one line, settings the model's policy cannot take: augmentation on observations that are not
+    images, augmentation or an encoder objective without an encoder the critic trains, an objective for an encoder
+    without parameters.
+
+    :param model: the algorithm (its policy, observation space, ``augmentation_views`` and ``representation``)
+    :param trains_encoder: whether an encoder objective trains the encoder
+    """
+    scaled = not model.policy.normalize_images
+    if model.augmentation_views and not is_image_space(model.observation_space, normalized_image=scaled):
+        raise ValueError(
+            f"augmentation_views={model.augmentation_views} shifts images, but the observations are "
+            f"{model.observation_space}; use augmentation_views=0 on states"
+        )
+    if (trains_encoder or model.augmentation_views) and not isinstance(model.policy, SharedEncoderPolicy):
+        raise ValueError(
+            f"{type(model).__name__} with a representation or augmentation needs a policy whose encoder the critic "
+            "trains (sb3_sgfd.common.policies.SharedEncoderPolicy and its subclasses), got "
+            f"{type(model.policy).__name__}"
+        )
+    encoder = model.critic.features_extractor
+    if trains_encoder and not any(True for _ in encoder.parameters()):
+        raise ValueError(
+            f"the {model.representation!r} representation trains the encoder, but {type(encoder).__name__} has no "
+            "parameters: use policy='EncoderMlpPolicy' (states) or 'CnnPolicy' (pixels)"
+        )

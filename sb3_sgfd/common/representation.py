@@ -60,13 +60,13 @@ class Batch(NamedTuple):
     :param replay_data: the replay samples (``DomainReplayBufferSamples``)
     :param observations: the observation views the critic trained on (augmented; the first is the actor's)
     :param next_observations: the next-observation views of the critic's target
-    :param update_index: index of this gradient step over the whole run
+    :param plan: the objective's own decisions for this step (what :meth:`Representation.plan` returned)
     """
 
     replay_data: Any
     observations: list[th.Tensor]
     next_observations: list[th.Tensor]
-    update_index: int
+    plan: tuple = ()
 
 
 class Representation(nn.Module):
@@ -86,6 +86,15 @@ class Representation(nn.Module):
 
         :param model: the algorithm (its policy, action space and device are set)
         """
+
+    def plan(self, update_index: int) -> tuple:
+        """The objective's decisions for the update ``update_index`` that its Python code branches on (e.g. whether
+        a part learns at this step): a captured update replays one graph per distinct plan, so every such branch
+        must read its decision from ``Batch.plan``, not from the update's index.
+
+        :param update_index: index of the gradient step over the whole run
+        """
+        return ()
 
     def critic_loss(
         self, model: Agent, observations: th.Tensor, actions: th.Tensor, q_values: tuple[th.Tensor, ...]

@@ -1,16 +1,27 @@
-"""Sample reweighting for feature decorrelation (SGFD paper, sections 4.1-4.2, eqs. 3-7).
+"""Sample weights that decorrelate features (SGFD paper, sections 4.1-4.2, eqs. 3-7), as the paper reads and as the
+authors' code computes them.
 
 Pure torch, no Stable-Baselines3 import. Read top to bottom next to the paper:
 
-1. ``random_fourier_features``: u(z_i) = sqrt(2) cos(omega z_i + psi), m functions per feature (eq. 4).
-2. ``decorrelation_loss``: sum_{i<j} p_i p_j ||Sigma_{Z_i Z_j; w}||_F^2 (eqs. 5-7; eq. 7 is the final loss).
-3. ``learn_sample_weights``: a few SGD steps on the weights w (sum w = n, w >= 0), Algorithm 1 lines 14-17.
-4. ``effective_sample_size`` and ``weighted_pearson``: what we check the weights with.
+1. random Fourier features: u(z_i) = sqrt(2) cos(omega z_i + psi), m functions per feature (eq. 4); the code's
+   variant (one omega per function, min-max scaled, cos and sin);
+2. the saliency-guided decorrelation loss sum_{i<j} p_i p_j ||Sigma_{Z_i Z_j; w}||_F^2 (eqs. 5-7) and its gradient
+   in the sample distribution, in closed form; the code's per-channel form;
+3. one solver loop (:func:`descend`: SGD with momentum on the logits theta of w = n softmax(theta)) and each
+   reading's objective on it (:func:`solve_weights`, :func:`solve_official_weights`; Algorithm 1, lines 14-17), and
+   a memory of past batches (:class:`WeightMemory`).
+
+These take their inputs as checked where they entered; :mod:`sb3_sgfd.sgfd.functional` has the same functions for
+a user, each checking its arguments (``learn_sample_weights``, ``decorrelation_loss``, ...).
+
+The solvers make no host read: their random draws come first, then the arithmetic (``core``: what
+``torch.compile`` fuses), then the memory's in-place update.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import torch
@@ -18,43 +29,60 @@ from torch import Tensor
 
 from sb3_sgfd.common.tensor_state import TensorStateModule
 from sb3_sgfd.common.validation import (
-    check_choice,
     check_interval,
-    check_matrix,
-    check_non_negative_int,
-    check_optional_positive,
-    check_positive_int,
 )
-from sb3_sgfd.sgfd.checks import check_probs, check_weights
 
 COVARIANCES = ("weighted", "literal")
 
 
-def random_fourier_features(z: Tensor, n_features: int = 5, generator: torch.Generator | None = None) -> Tensor:
-    """Random Fourier features of each column of ``z``: sqrt(2) cos(omega z + psi) (paper section 4.1).
-
-    omega ~ N(0, 1) and psi ~ U(0, 2 pi) are drawn independently for every (feature, function) pair.
-
-    :param z: features, shape (n, d)
-    :param n_features: number m of random functions per feature
-    :param generator: source of randomness; sampled on its device, so the global RNG is left untouched
-    :return: tensor of shape (n, d, m)
-    """
-    check_matrix(z, "z", min_rows=2, finite=True)
-    check_positive_int(n_features=n_features)
-    return _fourier_features(z, n_features, generator)
+# --- 1. Random Fourier features ---
 
 
-def _fourier_features(z: Tensor, n_features: int, generator: torch.Generator | None) -> Tensor:
-    d = z.shape[1]
-    # Sample where the generator lives (a CPU generator cannot fill a CUDA tensor), then move.
-    device = generator.device if generator is not None else z.device
-    omega = torch.randn(d, n_features, generator=generator, device=device).to(z)
-    psi = 2 * math.pi * torch.rand(d, n_features, generator=generator, device=device).to(z)
+def draw_fourier(
+    omega_shape: tuple[int, ...], psi_shape: tuple[int, ...], like: Tensor, generator: torch.Generator | None
+):
+    """omega ~ N(0, 1) and psi ~ U(0, 2 pi) of the given shapes, drawn where the generator lives, as ``like``."""
+    device = generator.device if generator is not None else like.device
+    omega = torch.randn(omega_shape, generator=generator, device=device).to(like)
+    psi = 2 * math.pi * torch.rand(psi_shape, generator=generator, device=device).to(like)
+    return omega, psi
+
+
+def fourier_features(z: Tensor, omega: Tensor, psi: Tensor) -> Tensor:
     return math.sqrt(2.0) * torch.cos(z.unsqueeze(-1) * omega + psi)
 
 
-def _covariance(u: Tensor, weights: Tensor, covariance: str) -> Tensor:
+def official_fourier_features(
+    x: Tensor, n_rff: int, draws: int = 1, generator: torch.Generator | None = None
+) -> Tensor:
+    """``draws`` independent draws of the code's random Fourier features of x: (draws, 2 m, n, d), channel-first.
+
+    For each draw, omega_f ~ N(0, 1) per function (shared by the features) and psi_if ~ U(0, 2 pi) per (feature,
+    function); s = x omega + psi is min-max scaled over the features of each sample and function to [0, pi/2];
+    the channels are sqrt(2 / m) cos(s) for each function, then sqrt(2 / m) sin(s).
+
+    :param x: features (n, d)
+    :param n_rff: functions m per draw
+    :param draws: independent draws (the solver's epochs)
+    :param generator: source of omega and psi (on its device)
+    """
+    return _official_features(x, *draw_fourier((draws, 1, 1, n_rff), (draws, 1, x.shape[1], n_rff), x, generator))
+
+
+def _official_features(x: Tensor, omega: Tensor, psi: Tensor) -> Tensor:
+    n_rff = omega.shape[-1]
+    # Laid out (draws, m, n, d), so that the scaling over the features reduces the last, contiguous axis.
+    s = x * omega.permute(0, 3, 1, 2) + psi.permute(0, 3, 1, 2)
+    low, high = torch.aminmax(s, dim=3, keepdim=True)
+    scale = (math.pi / 2) / (high - low).clamp_min(torch.finfo(s.dtype).tiny)
+    s = torch.addcmul(-low * scale, s, scale)
+    return torch.cat([torch.cos(s), torch.sin(s)], dim=1) * math.sqrt(2.0 / n_rff)
+
+
+# --- 2. The decorrelation loss and its gradient ---
+
+
+def covariance_matrix(u: Tensor, weights: Tensor, covariance: str) -> Tensor:
     """Covariance matrix (D, D) of the columns of u (n, D) under the sample weights."""
     if covariance == "weighted":
         # Covariance of the reweighted distribution: sum_k w_k (u_k - mu_w)(u_k - mu_w)^T / sum_k w_k.
@@ -67,111 +95,21 @@ def _covariance(u: Tensor, weights: Tensor, covariance: str) -> Tensor:
     return centred.T @ centred / (u.shape[0] - 1)
 
 
-def _pair_weights(feature_probs: Tensor, m: int) -> Tensor:
+def pair_weights(feature_probs: Tensor, m: int) -> Tensor:
     """(d*m, d*m) weight of each covariance entry: p_i p_j inside the (m x m) block of a pair i < j, else 0."""
     d = len(feature_probs)
     pairs = torch.triu(torch.outer(feature_probs, feature_probs), diagonal=1)
     return pairs[:, None, :, None].expand(d, m, d, m).reshape(d * m, d * m)
 
 
-def _decorrelation_loss(features: Tensor, weights: Tensor, pair_weights: Tensor, covariance: str) -> Tensor:
+def flat_decorrelation_loss(features: Tensor, weights: Tensor, pairs: Tensor, covariance: str) -> Tensor:
     """sum_{i<j} p_i p_j ||Sigma_ij||_F^2 from one covariance of the flattened (n, d*m) features."""
-    cov = _covariance(features, weights, covariance)
-    # Block (i, j) of cov is Sigma_{Z_i Z_j; w}; the weights pick the blocks above the diagonal.
-    return (pair_weights * cov.square()).sum()
+    return (pairs * covariance_matrix(features, weights, covariance).square()).sum()
 
 
-def decorrelation_loss(
-    rff: Tensor, weights: Tensor, feature_probs: Tensor | None = None, *, covariance: str = "weighted"
-) -> Tensor:
-    """Saliency-guided decorrelation loss: sum_{i<j} p_i p_j ||Sigma_{Z_i Z_j; w}||_F^2 (final SGFD loss).
-
-    All pairs come from one (d*m) x (d*m) covariance matrix; no loop over pairs.
-
-    :param rff: features per sample, shape (n, d, m) (``random_fourier_features``, or (n, d, 1) for raw ones)
-    :param weights: sample weights, shape (n,), non-negative; differentiable
-    :param feature_probs: p(Z_i), shape (d,), summing to 1; None means uniform (global decorrelation)
-    :param covariance: "weighted" (covariance of the reweighted samples, see ``learn_sample_weights``)
-        or "literal" (paper eq. 5 as printed: covariance of the products w_k u_k)
-    :return: scalar loss
-    """
-    if not isinstance(rff, Tensor) or rff.dim() != 3 or rff.shape[0] < 2:
-        shape = tuple(rff.shape) if isinstance(rff, Tensor) else type(rff).__name__
-        raise ValueError(f"rff must be a tensor of shape (n, d, m) with n >= 2, got {shape}")
-    if not torch.isfinite(rff).all():
-        raise ValueError("rff contains NaN or inf values")
-    check_weights(weights, rff.shape[0])
-    check_probs(feature_probs, rff.shape[1])
-    check_choice("covariance", covariance, COVARIANCES)
-    n, d, m = rff.shape
-    probs = rff.new_full((d,), 1.0 / d) if feature_probs is None else feature_probs
-    pair_weights = _pair_weights(probs.to(rff), m)
-    return _decorrelation_loss(rff.reshape(n, d * m), weights.to(rff), pair_weights, covariance)
-
-
-class WeightMemory(TensorStateModule):
-    """Features and weight logits of past batches, which the solver decorrelates the current batch against.
-
-    The official SGFD code (after StableNet) keeps one batch-sized memory: the loss is taken over the current
-    batch and the memory together (its logits fixed), then the memory moves towards the current batch,
-    ``memory = momentum * memory + (1 - momentum) * current`` (a running mean for its first
-    ``1 / (1 - momentum)`` updates). The paper does not mention it; ``bench/decorrelation.py`` measures it.
-    Its state (the remembered features and logits, the update count) is saved in its state dict as tensors.
-
-    :param momentum: Weight of the memory in its update, in [0, 1)
-    """
-
-    def __init__(self, momentum: float = 0.9) -> None:
-        super().__init__()
-        check_interval("memory momentum", momentum, 0.0, 1.0, high_open=True)
-        self.momentum = float(momentum)
-        self.features: Tensor | None = None
-        self.logits: Tensor | None = None
-        self.updates = 0
-
-    def remembers(self, features: Tensor) -> bool:
-        """Whether the memory holds rows of the shape of ``features`` (a batch of another size starts afresh)."""
-        return self.features is not None and self.features.shape == features.shape
-
-    def update(self, features: Tensor, logits: Tensor) -> None:
-        """Move the memory towards one solved batch.
-
-        :param features: the batch's features as the solver saw them (n, d)
-        :param logits: the solver's logits theta for it (n,)
-        """
-        features, logits = features.detach(), logits.detach()
-        if not self.remembers(features):
-            self.features, self.logits, self.updates = features.clone(), logits.clone(), 0
-        else:
-            assert self.features is not None and self.logits is not None  # remembers() says so
-            # A running mean first, so that the start does not linger.
-            keep = min(self.momentum, self.updates / (self.updates + 1))
-            self.features = keep * self.features + (1 - keep) * features
-            self.logits = keep * self.logits + (1 - keep) * logits
-        self.updates += 1
-
-    def state_tensors(self) -> dict[str, Tensor]:
-        if self.features is None or self.logits is None:
-            return {}
-        return {"features": self.features, "logits": self.logits, "updates": torch.tensor(float(self.updates))}
-
-    def load_state_tensors(self, tensors: dict[str, Tensor]) -> None:
-        self.features, self.logits = tensors.get("features"), tensors.get("logits")
-        self.updates = int(tensors["updates"]) if "updates" in tensors else 0
-
-    def load_legacy_state(self, state: dict[str, Any]) -> None:
-        self.features, self.logits, self.updates = state["features"], state["logits"], int(state["updates"])
-
-    def _apply(self, fn, recurse=True):  # type: ignore[no-untyped-def]
-        # .to(device) moves the remembered tensors, which are not parameters or buffers.
-        self.features = None if self.features is None else fn(self.features)
-        self.logits = None if self.logits is None else fn(self.logits)
-        return super()._apply(fn, recurse)
-
-
-def _scaled_loss_gradient(features: Tensor, a: Tensor, doubled_pairs: Tensor, covariance: str) -> tuple[Tensor, Tensor]:
+def scaled_loss_gradient(features: Tensor, a: Tensor, doubled_pairs: Tensor, covariance: str) -> tuple[Tensor, Tensor]:
     """dL/da for the flattened features (n, D) at the distribution a, given P + P^T (times any scale), and the
-    covariance C it was taken at (so that the solver's first step also gives it the loss at uniform weights).
+    covariance C it was taken at.
 
     With S = (P + P^T) / 2 and C the covariance, L = sum S * C^2 and dL/dC = G = (P + P^T) * C;
 
@@ -193,125 +131,68 @@ def _scaled_loss_gradient(features: Tensor, a: Tensor, doubled_pairs: Tensor, co
     return 2 * n / (n - 1) * ((centred @ (doubled_pairs * cov)) * features).sum(dim=1), cov
 
 
-def loss_gradient(
-    rff: Tensor, a: Tensor, feature_probs: Tensor | None = None, *, covariance: str = "weighted"
-) -> Tensor:
-    """Gradient of ``decorrelation_loss`` in the sample distribution a = w / sum(w), in closed form: the
-    solver's inner loop, two (n x D) by (D x D) products and no autograd (the tests compare it with autograd).
+def official_loss_and_gradient(u: Tensor, a: Tensor, pairs: Tensor) -> tuple[Tensor, Tensor]:
+    """The code's L = sum_c sum_{i != j} pairs_ij Cov_c(i, j)^2 for channels u (C, N, d) under the distribution a
+    (N,), and dL/da (N,) up to a term equal for every sample (which the softmax cancels).
 
-    :param rff: features per sample, shape (n, d, m)
-    :param a: sample distribution, shape (n,), summing to 1
-    :param feature_probs: p(Z_i), shape (d,); None = uniform
-    :param covariance: "weighted" or "literal"
-    :return: (n,) gradient, exact up to a term equal for every sample (see ``_scaled_loss_gradient``)
+    Cov_c = sum_k a_k (u_ck - mu_c)(u_ck - mu_c)^T with mu_c = sum_k a_k u_ck, so dL/da_k = sum_c (u_ck - mu_c)^T
+    (2 pairs * Cov_c) (u_ck - mu_c) - (a term equal for every k).
+
+    :param pairs: (d, d) symmetric pair weights p_i p_j, zero on the diagonal
     """
-    n, d, m = rff.shape
-    check_choice("covariance", covariance, COVARIANCES)
-    check_probs(feature_probs, d)
-    probs = (rff.new_full((d,), 1.0 / d) if feature_probs is None else feature_probs).to(rff)
-    pair_weights = _pair_weights(probs, m)
-    return _scaled_loss_gradient(rff.reshape(n, d * m), a, pair_weights + pair_weights.T, covariance)[0]
+    centred, cov = _centred_covariance(u, a)
+    grad = ((centred @ (2 * pairs * cov)) * centred).sum(dim=(0, 2))
+    return (pairs * cov.square()).sum(), grad
 
 
-def learn_sample_weights(
-    z: Tensor,
-    feature_probs: Tensor | None = None,
+def official_loss(u: Tensor, a: Tensor, pairs: Tensor) -> Tensor:
+    """The loss of :func:`official_loss_and_gradient` alone, the same value, without the gradient's work."""
+    return (pairs * _centred_covariance(u, a)[1].square()).sum()
+
+
+def _centred_covariance(u: Tensor, a: Tensor) -> tuple[Tensor, Tensor]:
+    """Channels u (C, N, d) centred under the distribution a (N,), and their covariances (C, d, d)."""
+    centred = u - torch.einsum("n,cnd->cd", a, u).unsqueeze(1)
+    return centred, centred.transpose(1, 2) @ (a.unsqueeze(1) * centred)
+
+
+# --- 3. The solver ---
+
+
+def descend(
+    theta: Tensor,
+    gradient: Callable[[int, Tensor], Tensor],
     *,
-    n_rff: int = 5,
-    iters: int = 10,
-    lr: float = 5.0,
-    momentum: float = 0.9,
-    weight_decay: float = 1e-4,
-    use_rff: bool = True,
-    covariance: str = "weighted",
-    ess_penalty: float = 0.35,
-    feature_std: float | None = 0.5,
-    memory: WeightMemory | None = None,
-    max_step: float | None = None,
-    generator: torch.Generator | None = None,
-    return_losses: bool = False,
-) -> Tensor | tuple[Tensor, float, float]:
-    """Sample weights that decorrelate the features of one batch (final SGFD loss; Alg. 1 lines 14-17).
+    iters: int,
+    lr: Callable[[int], float],
+    momentum: float,
+    weight_decay: float,
+    max_step: float | None,
+) -> Tensor:
+    """``iters`` steps of SGD with momentum and weight decay on the logits theta (torch's SGD, written out: no
+    optimiser state, no host read), both readings' solver loop.
 
-    Takes ``iters`` SGD steps on logits theta, w = n softmax(theta) (so w >= 0 and sum w = n), minimising
-
-        L(w) / L(1) + ess_penalty * (n / ESS(w) - 1),
-
-    L = ``decorrelation_loss`` on one RFF draw of the batch. The gradient is in closed form
-    (``loss_gradient``) and the SGD step (momentum, weight decay) is torch's, written out: no autograd and
-    no host-device synchronisation inside the loop. Why these choices (the figures behind each are in the
-    documentation's "design choices" page, measured by ``bench/decorrelation.py``):
-
-    - ``covariance="weighted"`` is the covariance of the reweighted samples. Eq. 5 as printed ("literal",
-      the covariance of the products w_k u_k) also counts the spread of the weights themselves, so its
-      minimum need not be a decorrelating reweighting: at a stable lr it barely decorrelates, and at a large
-      one it collapses onto single samples.
-    - Dividing by L(1), the loss at uniform weights, makes the step size independent of the scale of z,
-      p and the RFF (the paper's lr 1e-2 then leaves the weights uniform).
-    - ``ess_penalty``: n / ESS - 1 = mean(w^2) - 1, the official code's sum-of-squares penalty on the
-      softmax weights, keeps the weights from collapsing onto a few samples; the strength knob.
-    - ``feature_std``: features are standardised over the batch and rescaled to this std before the RFF,
-      so omega ~ N(0, 1) meets the same scale on raw states as on tanh encoder features, whose spread of
-      ~0.5 is what the paper's omega ~ N(0, 1) was used on. ``None`` is the paper's (z as is).
-    - ``memory`` (off by default; the official code's, see :class:`WeightMemory`): the loss covers the
-      current batch and the memory's features under its stored logits, and the memory is then updated.
-    - ``max_step`` (off by default): a trust region, each SGD step scaled down so that no logit moves by
-      more than ``max_step``; it protects the worst batches' effective sample size.
-
-    A batch with nothing to decorrelate (loss 0 at uniform weights, e.g. d = 1) gets uniform weights.
-
-    :param z: features of the batch, shape (n, d); detached here
-    :param feature_probs: p(Z_i), shape (d,); None = uniform (global decorrelation)
-    :param n_rff: random Fourier functions per feature (m)
-    :param iters: SGD steps; 0 returns uniform weights
-    :param lr: SGD learning rate on the logits theta
+    :param theta: the starting logits (n,)
+    :param gradient: (step, theta) -> the objective's gradient in theta
+    :param iters: steps
+    :param lr: step -> learning rate
     :param momentum: SGD momentum
-    :param weight_decay: SGD weight decay on theta (pulls towards uniform weights)
-    :param use_rff: False decorrelates the standardised features themselves (the paper's "no RFF" ablation)
-    :param covariance: "weighted" or "literal", see ``decorrelation_loss``
-    :param ess_penalty: weight of the n / ESS - 1 penalty (0 disables it)
-    :param feature_std: standard deviation the features are rescaled to before the RFF; None = as is
-    :param memory: past batches to decorrelate against, updated in place; None = this batch only
-    :param max_step: largest change of any logit in one step (a trust region); None = unbounded
-    :param generator: RNG for the RFF draw; the global RNG is untouched when given
-    :param return_losses: also return the loss at uniform weights and at the returned weights
-    :return: weights (n,), non-negative, summing to n, without grad; with ``return_losses``
-        the tuple (weights, loss_before, loss_after) of this batch alone, same RFF draw
+    :param weight_decay: SGD weight decay on theta
+    :param max_step: largest change of a logit in one step (a trust region); None: unbounded
     """
-    check_matrix(z, "z", min_rows=2, finite=True)
-    check_probs(feature_probs, z.shape[1])
-    check_choice("covariance", covariance, COVARIANCES)
-    check_positive_int(n_rff=n_rff)
-    check_non_negative_int(iters=iters)
-    numbers = {"lr": lr, "momentum": momentum, "weight_decay": weight_decay, "ess_penalty": ess_penalty}
-    for name, value in numbers.items():
-        if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-            raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-    if feature_std is not None and (not isinstance(feature_std, (int, float)) or not feature_std > 0):
-        raise ValueError(f"feature_std must be None or a number > 0, got {feature_std!r}")
-    check_optional_positive("max_step", max_step)
-    if memory is not None and not isinstance(memory, WeightMemory):
-        raise ValueError(f"memory must be None or a WeightMemory, got {type(memory).__name__}")
+    velocity = torch.zeros_like(theta)
+    for step in range(iters):
+        grad = torch.add(gradient(step, theta), theta, alpha=weight_decay)
+        velocity = grad if step == 0 else torch.add(grad, velocity, alpha=momentum)
+        if max_step is None:
+            theta = torch.add(theta, velocity, alpha=-lr(step))
+        else:  # scaled as a tensor, not by a Python branch on its size: no host-device synchronisation
+            change = lr(step) * velocity
+            theta = theta - change * (max_step / change.abs().max()).clamp(max=1.0)
+    return theta
 
-    weights, loss_before, loss_after = solve_weights(
-        z,
-        feature_probs,
-        n_rff=n_rff,
-        iters=iters,
-        lr=lr,
-        momentum=momentum,
-        weight_decay=weight_decay,
-        use_rff=use_rff,
-        covariance=covariance,
-        ess_penalty=ess_penalty,
-        feature_std=feature_std,
-        memory=memory,
-        max_step=max_step,
-        generator=generator,
-    )
-    if not torch.isfinite(weights).all():
-        raise RuntimeError("learn_sample_weights produced non-finite weights; lower lr")
-    return (weights, loss_before.item(), loss_after.item()) if return_losses else weights
+
+Solution = tuple[Tensor, Tensor, Tensor, Tensor]  # weights (n,), logits (n,), loss before, loss after
 
 
 def solve_weights(
@@ -331,110 +212,270 @@ def solve_weights(
     update_memory: bool = True,
     max_step: float | None = None,
     generator: torch.Generator | None = None,
+    take: Tensor | None = None,
+    core: Callable[..., Solution] | None = None,
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """``learn_sample_weights`` without its argument checks and with the losses as 0-d tensors: what SGFD_SAC
-    runs at every step, with no host read (its inputs are checked where they enter).
+    """The paper reading's weights (:func:`sb3_sgfd.sgfd.functional.learn_sample_weights` without its checks, the
+    losses as 0-d tensors): what
+    SGFD_SAC runs at every step, with no host read.
 
     :param update_memory: move ``memory`` towards this batch afterwards (False: only read it)
+    :param take: a 0-d bool: the memory moves only where it is true (the weights are in use)
+    :param core: the arithmetic (:func:`paper_solution`, or its compiled form)
     :return: weights (n,), the loss at uniform weights and at the weights (this batch alone, same RFF draw)
     """
-    n, d = z.shape
-
-    dtype = torch.float64 if z.dtype == torch.float64 else torch.float32
-    z = z.detach().to(dtype)
+    d = z.shape[1]
+    z = z.detach().to(torch.float64 if z.dtype == torch.float64 else torch.float32)
     if feature_std is not None:
         # Constant features become 0 and so drop out of the loss.
         z = feature_std * (z - z.mean(dim=0)) / z.std(dim=0).clamp_min(1e-8)
-    remembered = memory is not None and memory.remembers(z)
-    every_z = torch.cat([z, memory.features.to(z)]) if remembered else z  # type: ignore[union-attr]
-    features = _fourier_features(every_z, n_rff, generator) if use_rff else every_z.unsqueeze(-1)
-    m = features.shape[2]
-    features = features.reshape(len(every_z), d * m)
-    probs = z.new_full((d,), 1.0 / d) if feature_probs is None else feature_probs.detach()
+    omega, psi = draw_fourier((d, n_rff), (d, n_rff), z, generator) if use_rff else (None, None)
+    probs = z.new_full((d,), 1.0 / d) if feature_probs is None else feature_probs.detach().to(z)
+    remembered, fixed_logits = (None, None) if memory is None else memory.rows(z)
+    settings = (iters, lr, momentum, weight_decay, ess_penalty, max_step, covariance)
+    weights, theta, before, after = (core or paper_solution)(z, probs, omega, psi, remembered, fixed_logits, *settings)
+    if memory is not None and update_memory:
+        memory.update(z, theta, take)
+    return weights, before, after
 
-    fixed_logits = memory.logits.to(z) if remembered else None  # type: ignore[union-attr]
+
+def paper_solution(
+    z: Tensor,
+    probs: Tensor,
+    omega: Tensor | None,
+    psi: Tensor | None,
+    remembered: Tensor | None,
+    fixed_logits: Tensor | None,
+    iters: int,
+    lr: float,
+    momentum: float,
+    weight_decay: float,
+    ess_penalty: float,
+    max_step: float | None,
+    covariance: str,
+) -> Solution:
+    """The paper reading's objective, L(w) / L(1) + ess_penalty * (n / ESS(w) - 1) on one RFF draw, minimised by
+    :func:`descend` from uniform weights (see ``learn_sample_weights`` for why each choice)."""
+    n, d = z.shape
+    rows = z if remembered is None else torch.cat([z, remembered])
+    features = fourier_features(rows, omega, psi) if omega is not None and psi is not None else rows.unsqueeze(-1)
+    m = features.shape[2]
+    features = features.reshape(len(rows), d * m)
+    pairs = pair_weights(probs, m)
+    doubled_pairs = pairs + pairs.T
 
     def distribution(theta: Tensor) -> Tensor:
         return torch.softmax(theta if fixed_logits is None else torch.cat([theta, fixed_logits]), dim=0)
 
-    pair_weights = _pair_weights(probs.to(z), m)
-    doubled_pairs = pair_weights + pair_weights.T
-    theta = z.new_zeros(n)
-    a = distribution(theta)
-    # The first step's gradient, at the starting weights, comes with the covariance there and so the loss.
-    grad_a, cov = _scaled_loss_gradient(features, a, doubled_pairs, covariance)
-    loss_start = (pair_weights * cov.square()).sum()
-    # The loss divided by its starting value, and the factor 2 of dL/dC, folded into the pair weights once.
-    # A loss of 0 (nothing to decorrelate) leaves only the penalty, whose gradient at uniform weights is
-    # zero: theta stays 0 without a data-dependent branch (no host-device synchronisation in the loop).
+    # The loss at the start scales the objective, so that the step size is independent of the scale of z, p and
+    # the RFF; a loss of 0 (nothing to decorrelate) leaves only the penalty, whose gradient at uniform weights is 0.
+    grad_start, cov = scaled_loss_gradient(features, distribution(z.new_zeros(n)), doubled_pairs, covariance)
+    loss_start = (pairs * cov.square()).sum()
     scale = torch.where(loss_start > 0, 1 / loss_start, 0.0)
     scaled_pairs = doubled_pairs * scale
-    grad_a = grad_a * scale
     penalty = 2 * ess_penalty * n
-    velocity = torch.zeros_like(theta)
-    for step in range(iters):
-        if step > 0:
-            a = distribution(theta)
-            grad_a = _scaled_loss_gradient(features, a, scaled_pairs, covariance)[0]
-        # d/da of loss + ess_penalty * (n sum(a^2) - 1); the penalty counts this batch only.
-        # Through the softmax: a * (g - a . g) for each softmax (the memory's logits are constants).
-        if fixed_logits is None:  # one softmax for both terms: n sum(a^2) has gradient 2 n a
+
+    def gradient(step: int, theta: Tensor) -> Tensor:
+        a = distribution(theta)
+        grad_a = grad_start * scale if step == 0 else scaled_loss_gradient(features, a, scaled_pairs, covariance)[0]
+        # d/da of loss + ess_penalty * (n sum(a^2) - 1); the penalty counts this batch only. Through the softmax:
+        # a * (g - a . g) for each softmax (the memory's logits are constants).
+        if fixed_logits is None:
             grad_a = torch.add(grad_a, a, alpha=penalty)
-            grad = a * (grad_a - a @ grad_a)
-        else:
-            own = torch.softmax(theta, dim=0)
-            grad = (a * (grad_a - a @ grad_a))[:n] + penalty * own * (own - own @ own)
-        grad = torch.add(grad, theta, alpha=weight_decay)
-        velocity = grad if step == 0 else torch.add(grad, velocity, alpha=momentum)
-        if max_step is None:
-            theta = torch.add(theta, velocity, alpha=-lr)
-        else:  # scaled as a tensor, not by a Python branch on its size: no host-device synchronisation
-            change = lr * velocity
-            theta = theta - change * (max_step / change.abs().max()).clamp(max=1.0)
+            return a * (grad_a - a @ grad_a)
+        own = torch.softmax(theta, dim=0)
+        return (a * (grad_a - a @ grad_a))[:n] + penalty * own * (own - own @ own)
+
+    theta = descend(
+        z.new_zeros(n),
+        gradient,
+        iters=iters,
+        lr=lambda _: lr,
+        momentum=momentum,
+        weight_decay=weight_decay,
+        max_step=max_step,
+    )
     weights = n * torch.softmax(theta, dim=0)
+    own_features = features[:n]
+    before = (
+        loss_start
+        if remembered is None
+        else flat_decorrelation_loss(own_features, torch.ones_like(weights), pairs, covariance)
+    )
+    return weights, theta, before, flat_decorrelation_loss(own_features, weights, pairs, covariance)
+
+
+def solve_official_weights(
+    z: Tensor,
+    probs: Tensor,
+    *,
+    n_rff: int = 5,
+    iters: int = 20,
+    lr: float = 1.0,
+    momentum: float = 0.9,
+    weight_decay: float = 0.0,
+    ess_penalty: float = 5.0,
+    use_rff: bool = True,
+    memory: WeightMemory | None = None,
+    update_memory: bool = True,
+    max_step: float | None = None,
+    generator: torch.Generator | None = None,
+    core: Callable[..., Solution] | None = None,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The code's weight solver, closed form, no host read: ``iters`` epochs of SGD (lr divided by 10 for the second
+    half) on logits theta (from 1) of w = softmax(theta), minimising L / L.detach() + ess_penalty P / P.detach() (the
+    gradient of log L + ess_penalty log P), P = sum w^2, L the per-channel loss under the softmax weights of the batch
+    and the memory together, on a fresh RFF draw each epoch.
+
+    :param z: features of the batch (n, d), as they are (no standardisation)
+    :param probs: p(Z_i) (d,)
+    :param memory: past batches decorrelated against (their logits fixed); None: this batch alone
+    :param update_memory: move the memory towards this batch afterwards
+    :param generator: source of the RFF draws
+    :param core: the arithmetic (:func:`official_solution`, or its compiled form)
+    :return: weights (n,) with mean 1, and the loss of this batch alone at uniform weights and at the weights (on the
+        first epoch's draw)
+    """
+    d = z.shape[1]
+    z = z.detach().to(torch.float64 if z.dtype == torch.float64 else torch.float32)
+    draws = max(iters, 1)
+    omega, psi = draw_fourier((draws, 1, 1, n_rff), (draws, 1, d, n_rff), z, generator) if use_rff else (None, None)
+    remembered, fixed_logits = (None, None) if memory is None else memory.rows(z)
+    settings = (iters, lr, momentum, weight_decay, ess_penalty, max_step)
+    weights, theta, before, after = (core or official_solution)(
+        z, probs.to(z), omega, psi, remembered, fixed_logits, *settings
+    )
     if memory is not None and update_memory:
         memory.update(z, theta)
-    # The losses of this batch alone (without the memory), on the same draw.
-    own_features = features[:n]
-    if fixed_logits is None:
-        loss_before = loss_start
+    return weights, before, after
+
+
+def official_solution(
+    z: Tensor,
+    probs: Tensor,
+    omega: Tensor | None,
+    psi: Tensor | None,
+    remembered: Tensor | None,
+    fixed_logits: Tensor | None,
+    iters: int,
+    lr: float,
+    momentum: float,
+    weight_decay: float,
+    ess_penalty: float,
+    max_step: float | None,
+) -> Solution:
+    """The code's objective on :func:`descend` (see :func:`solve_official_weights`)."""
+    n = z.shape[0]
+    rows = z if remembered is None else torch.cat([z, remembered])
+    draws = max(iters, 1)
+    if omega is not None and psi is not None:
+        channels = _official_features(rows, omega, psi)
     else:
-        loss_before = _decorrelation_loss(own_features, torch.ones_like(weights), pair_weights, covariance)
-    return weights, loss_before, _decorrelation_loss(own_features, weights, pair_weights, covariance)
+        channels = rows.expand(draws, 1, *rows.shape)
+    pairs = torch.outer(probs, probs)
+    pairs = pairs - torch.diag(pairs.diagonal())
+
+    def gradient(epoch: int, theta: Tensor) -> Tensor:
+        a = torch.softmax(theta if fixed_logits is None else torch.cat([theta, fixed_logits]), dim=0)
+        loss, grad_a = official_loss_and_gradient(channels[epoch], a, pairs)
+        own = torch.softmax(theta, dim=0)
+        concentration = own.square().sum()
+        # grad of log L + penalty log P through the softmaxes (the memory's logits are constants)
+        grad = (a * (grad_a - a @ grad_a))[:n] * torch.where(loss > 0, 1 / loss, 0.0)
+        return grad + ess_penalty * 2 * own * (own - concentration) / concentration
+
+    theta = descend(
+        z.new_ones(n),
+        gradient,
+        iters=iters,
+        lr=lambda epoch: lr * 0.1 ** math.floor(epoch / (iters * 0.5)),
+        momentum=momentum,
+        weight_decay=weight_decay,
+        max_step=max_step,
+    )
+    weights = n * torch.softmax(theta, dim=0)
+    first = channels[0, :, :n]
+    before = official_loss(first, z.new_full((n,), 1.0 / n), pairs)
+    return weights, theta, before, official_loss(first, weights / n, pairs)
 
 
-def effective_sample_size(weights: Tensor) -> float:
-    """Kish's effective sample size (sum w)^2 / sum w^2: n for uniform weights, 1 for a single sample.
+class WeightMemory(TensorStateModule):
+    """Features and weight logits of past batches, which the solver decorrelates the current batch against.
 
-    :param weights: non-negative weights, shape (n,)
+    The official SGFD code (after StableNet) keeps one batch-sized memory: the loss is taken over the current
+    batch and the memory together (its logits fixed), then the memory moves towards the current batch,
+    ``memory = momentum * memory + (1 - momentum) * current`` (a running mean for its first
+    ``1 / (1 - momentum)`` updates). The paper does not mention it; ``bench/decorrelation.py`` measures it.
+    Its tensors are made at the first batch and updated in place (a captured graph reads them where they are);
+    until an update has filled it the memory's rows carry no weight, so the first batch is solved alone.
+
+    :param momentum: Weight of the memory in its update, in [0, 1)
     """
-    if not isinstance(weights, Tensor) or weights.dim() != 1 or weights.numel() < 1:
-        raise ValueError("weights must be a 1-D tensor with at least one element")
-    check_weights(weights, weights.shape[0])
-    w = weights.detach().double()
-    return (w.sum().square() / w.square().sum()).item()
 
+    def __init__(self, momentum: float = 0.9) -> None:
+        super().__init__()
+        check_interval("memory momentum", momentum, 0.0, 1.0, high_open=True)
+        self.momentum = float(momentum)
+        self.features: Tensor | None = None
+        self.logits: Tensor | None = None
+        self.count: Tensor | None = None  # updates so far, a 0-d float tensor
 
-def weighted_pearson(x: Tensor, weights: Tensor | None = None) -> Tensor:
-    """Weighted Pearson correlation matrix of the columns of ``x``.
+    @property
+    def updates(self) -> int:
+        """The updates so far (a host read)."""
+        return 0 if self.count is None else int(self.count)
 
-    Columns with no weighted variance (up to rounding) have correlation 0 with every other column.
+    def rows(self, features: Tensor) -> tuple[Tensor, Tensor]:
+        """The remembered features for a batch like ``features`` and their logits, -inf while the memory is empty
+        (no weight in a softmax); made at the first call, and afresh for a batch of another shape."""
+        if self.features is None or self.features.shape != features.shape:
+            self.features = torch.zeros_like(features)
+            self.logits = features.new_zeros(len(features))
+            self.count = features.new_zeros(())
+        assert self.logits is not None and self.count is not None
+        empty = torch.full_like(self.logits, -math.inf)
+        return self.features.to(features), torch.where(self.count > 0, self.logits.to(features), empty)
 
-    :param x: samples, shape (n, d)
-    :param weights: non-negative sample weights (n,); None = uniform
-    :return: (d, d) matrix with 1 on the diagonal
-    """
-    check_matrix(x, "x", min_rows=2, finite=True)
-    n = x.shape[0]
-    if weights is None:
-        weights = torch.ones(n, dtype=x.dtype, device=x.device)
-    check_weights(weights, n)
-    cov = _covariance(x.detach(), weights.detach().to(x), "weighted")
-    std = cov.diagonal().clamp_min(0).sqrt()
-    # Centring a constant column leaves rounding noise of about eps * |x|; dividing by it would be noise too.
-    varies = std > 10 * torch.finfo(x.dtype).eps * x.detach().abs().amax(dim=0)
-    std = torch.where(varies, std, torch.ones_like(std))
-    corr = (cov / torch.outer(std, std)).clamp(-1.0, 1.0)
-    corr = torch.where(torch.outer(varies, varies), corr, torch.zeros_like(corr))
-    corr.fill_diagonal_(1.0)
-    return corr
+    def update(self, features: Tensor, logits: Tensor, take: Tensor | None = None) -> None:
+        """Move the memory towards one solved batch, in place (a running mean first, so that the start does not
+        linger); with ``take`` (0-d bool), only where it is true.
+
+        :param features: the batch's features as the solver saw them (n, d)
+        :param logits: the solver's logits theta for it (n,)
+        :param take: whether the batch's weights are in use
+        """
+        self.rows(features)  # made if need be
+        assert self.features is not None and self.logits is not None and self.count is not None
+        with torch.no_grad():
+            keep = torch.clamp(self.count / (self.count + 1), max=self.momentum)
+            moved_features = keep * self.features + (1 - keep) * features.detach()
+            moved_logits = keep * self.logits + (1 - keep) * logits.detach()
+            if take is None:
+                self.features.copy_(moved_features), self.logits.copy_(moved_logits), self.count.add_(1)
+            else:
+                self.features.copy_(torch.where(take, moved_features, self.features))
+                self.logits.copy_(torch.where(take, moved_logits, self.logits))
+                self.count.add_(take.to(self.count.dtype))
+
+    def state_tensors(self) -> dict[str, Tensor]:
+        if self.features is None or self.logits is None or self.count is None:
+            return {}
+        return {"features": self.features, "logits": self.logits, "updates": self.count}
+
+    def load_state_tensors(self, tensors: dict[str, Tensor]) -> None:
+        self.features, self.logits = tensors.get("features"), tensors.get("logits")
+        count = tensors.get("updates")
+        self.count = (
+            None if self.features is None else torch.as_tensor(0.0 if count is None else count).to(self.features)
+        )
+
+    def load_legacy_state(self, state: dict[str, Any]) -> None:
+        self.features, self.logits = state["features"], state["logits"]
+        self.count = torch.tensor(float(state["updates"])).to(self.features)
+
+    def _apply(self, fn, recurse=True):  # type: ignore[no-untyped-def]
+        # .to(device) moves the remembered tensors, which are not parameters or buffers.
+        self.features = None if self.features is None else fn(self.features)
+        self.logits = None if self.logits is None else fn(self.logits)
+        self.count = None if self.count is None else fn(self.count)
+        return super()._apply(fn, recurse)

@@ -48,8 +48,8 @@ class SGFDSettings:
     The settings of SGFD's sample weights. The defaults are the paper reading's; :meth:`official` gives the
     code's (marked o below where they differ), :meth:`of_reading` a reading's with some settings changed.
 
-    :param reading: ``"paper"`` (:class:`sb3_sgfd.sgfd.paper_reading.PaperWeighting`) or ``"official"``
-        (:class:`sb3_sgfd.sgfd.official_reading.OfficialWeighting`)
+    :param reading: ``"paper"`` (:class:`sb3_sgfd.sgfd.weighting.PaperWeighting`) or ``"official"``
+        (:class:`sb3_sgfd.sgfd.weighting.OfficialWeighting`)
     :param classifier_start: Env steps before the domain classifier starts training
     :param classifier_iters: (o 10) Classifier updates per classifier round (paper: at most, the first on this
         batch's features, the others on fresh replay batches, Algorithm 1's 10; official: steps on fresh
@@ -74,7 +74,7 @@ class SGFDSettings:
     :param saliency_temperature: (o 1 of the raw saliency) Softmax temperature giving p(Z_i) (paper reading: of
         the max-normalised saliency)
     :param saliency_smoothing: (o 0) Weight of the uniform distribution mixed into p(Z_i)
-        (:func:`sb3_sgfd.sgfd.saliency.feature_probabilities`)
+        (:func:`sb3_sgfd.sgfd.functional.feature_probabilities`)
     :param use_rff: Decorrelate random Fourier features (False: the features themselves, linear only)
     :param use_saliency: Weight feature pairs by the classifier's saliency (False: uniform, global decorrelation)
     :param reweight_critic: (o False) Apply the weights to the critic loss

@@ -14,15 +14,13 @@ from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_sgfd.common.buffer_setup import DOMAIN_BUFFERS
 from sb3_sgfd.common.buffers import DomainReplayBuffer, DomainReplayBufferSamples
-from sb3_sgfd.common.encoder_sac import EncoderSAC
+from sb3_sgfd.common.encoder_sac import EncoderSAC, StepPlan
 from sb3_sgfd.common.validation import check_positive_int
-from sb3_sgfd.sgfd.official_reading import OfficialWeighting
-from sb3_sgfd.sgfd.paper_reading import PaperWeighting
 from sb3_sgfd.sgfd.settings import SGFDSettings, setting_names
-from sb3_sgfd.sgfd.weighting import SampleWeighting, Step, WeightingFactory
+from sb3_sgfd.sgfd.weighting import CLASSIFIER_BATCHES, READINGS, OfficialWeighting, SampleWeighting, WeightingPlan
 
-#: The weighting of each reading (``SGFDSettings.reading``): the paper's text, and what the authors' code computes.
-WEIGHTINGS: dict[str, WeightingFactory] = {"paper": PaperWeighting, "official": OfficialWeighting}
+#: The figures of the weights themselves, logged over the steps where the weights are in use.
+WEIGHT_FIGURES = ("weight_ess", "weight_min", "weight_max", "decorrelation_loss_before", "decorrelation_loss_after")
 
 _SINGLE_DOMAIN_WARNING = (
     "SGFD_SAC sees a single domain, so there is nothing to decorrelate; it trains as plain SAC. Give it "
@@ -40,10 +38,10 @@ class SGFD_SAC(EncoderSAC):
     actor losses. How the weights are computed is one of two readings (``reading``), each a
     :class:`sb3_sgfd.sgfd.weighting.SampleWeighting`:
 
-    - ``"paper"`` (:class:`sb3_sgfd.sgfd.paper_reading.PaperWeighting`): Algorithm 1 as printed, with this
+    - ``"paper"`` (:class:`sb3_sgfd.sgfd.weighting.PaperWeighting`): Algorithm 1 as printed, with this
       package's measured choices; the classifier trains from ``classifier_start`` while its accuracy is below
       ``accuracy_threshold``, and the weights start the first time it reaches it (until then this is SAC);
-    - ``"official"`` (:class:`sb3_sgfd.sgfd.official_reading.OfficialWeighting`): what the authors' code
+    - ``"official"`` (:class:`sb3_sgfd.sgfd.weighting.OfficialWeighting`): what the authors' code
       computes, which produced the published numbers: weights on the actor loss only from the first update, a
       memory of past batches, guided-backprop saliency, and an objective that keeps the weights close to uniform.
 
@@ -105,6 +103,7 @@ class SGFD_SAC(EncoderSAC):
         representation: str | None = None,
         representation_kwargs: dict[str, Any] | None = None,
         actor_reuses_features: bool = True,
+        compile_update: bool | None = None,
         reading: str | None = None,
         n_domains: int | None = None,
         sgfd: SGFDSettings | None = None,
@@ -194,6 +193,7 @@ class SGFD_SAC(EncoderSAC):
             representation=representation,
             representation_kwargs=representation_kwargs,
             actor_reuses_features=actor_reuses_features,
+            compile_update=compile_update,
             _init_setup_model=_init_setup_model,
         )
 
@@ -215,8 +215,7 @@ class SGFD_SAC(EncoderSAC):
         if self.n_domains == 1 and not self.single_domain:
             warnings.warn(_SINGLE_DOMAIN_WARNING, stacklevel=2)
             self.single_domain = True
-        # The RFF draw of update k is seeded from (rff_seed, k): reproducible, and the seed is all that
-        # a checkpoint needs to continue the same sequence.
+        # The RFF draws come from a generator seeded once from rff_seed (a checkpoint saves its state).
         if self.rff_seed is None:
             self.rff_seed = self._derived_seeds()["reweighting"]
         self.weighting = self._new_weighting()
@@ -226,12 +225,13 @@ class SGFD_SAC(EncoderSAC):
         # A forked RNG: SGFD's additions must not shift the random streams SAC draws from, so that with
         # w = 1 this is SAC to the last bit under the same seed.
         with th.random.fork_rng(devices=[]):
-            return WEIGHTINGS[self.sgfd.reading](
+            return READINGS[self.sgfd.reading](
                 self.critic.features_extractor.features_dim,
                 self.n_domains,  # type: ignore[arg-type]
                 self.sgfd,
                 seed=self.rff_seed,  # type: ignore[arg-type]
                 device=self.device,
+                compile_solver=self._captures_update(),
             )
 
     def set_parameters(
@@ -256,33 +256,68 @@ class SGFD_SAC(EncoderSAC):
         """The weighting's domain classifier."""
         return self.weighting.classifier
 
-    def _batch_weights(
-        self,
-        replay_data: DomainReplayBufferSamples,
-        z: th.Tensor,
-        batch_size: int,
-        update_index: int,
-        update_actor: bool,
-    ) -> tuple[th.Tensor | None, th.Tensor | None]:
-        """
-        The reading's weights of this batch (:class:`sb3_sgfd.sgfd.weighting.SampleWeighting`), as (n, 1) weights of
-        the critic and of the actor (None where that loss is not reweighted or the reading gives none; weights
-        for the actor alone are not computed on the steps it does not learn).
-        """
+    def _weighting_plan(self, update_index: int, update_actor: bool) -> tuple:
+        """The weighting's decisions for the update (empty: it does nothing, and this step is SAC's)."""
         if self.single_domain or not self.weighting.active(self.num_timesteps):
-            return None, None
+            return ()
         if not self._domains_checked:
             # Once, when the weighting starts: stored_domains() reads the whole buffer.
             self._domains_checked = True
             if len(self.replay_buffer.stored_domains()) < 2:  # type: ignore[union-attr]
                 warnings.warn(_SINGLE_DOMAIN_WARNING, stacklevel=2)
                 self.single_domain = True
-                return None, None
+                return ()
         weights_wanted = self.sgfd.reweight_critic or (self.sgfd.reweight_actor and update_actor)
-        step = Step(update_index, self.num_timesteps, weights_wanted, self._fresh_features)
-        weights, figures = self.weighting(z, self._checked_domains(replay_data.domains), step)
+        return tuple(self.weighting.plan(update_index, self.num_timesteps, weights_wanted))
+
+    def _before_gradient_step(
+        self, replay_data: DomainReplayBufferSamples, observations: list[th.Tensor], plan: StepPlan
+    ) -> None:
+        """Where a classifier round needs the host: the paper reading's further batches are sampled (the step encodes
+        them); the code reading's round scores the batch, and if it is below the threshold (the round's one host
+        read) trains on fresh batches before the step."""
+        self._fresh_batches: list[DomainReplayBufferSamples] = []
+        if not plan.weighting or not WeightingPlan(*plan.weighting).classifier_round:
+            return
+        n, iters = len(replay_data.actions), self.sgfd.classifier_iters
+        if not isinstance(self.weighting, OfficialWeighting):
+            self._fresh_batches = [self._fresh_batch(f"sgfd fresh {i}", n) for i in range(iters - 1)]
+            return
+        score = self._update.run("sgfd score", self._score, observations[0], self._checked_domains(replay_data.domains))
+        if bool(score < self.sgfd.accuracy_threshold):
+            batches = [self._fresh_batch(f"sgfd round {i}", CLASSIFIER_BATCHES * n) for i in range(iters)]
+            self._update.run("sgfd round", self._official_round, batches)
+
+    def _fresh_batch(self, name: str, n_samples: int) -> DomainReplayBufferSamples:
+        """A fresh replay batch for the classifier, in the static inputs ``name`` when captured."""
+        batch = self.replay_buffer.sample(n_samples, env=self._vec_normalize_env)  # type: ignore[union-attr]
+        return self._update.inputs(name, batch)
+
+    def _score(self, observations: th.Tensor, domains: th.Tensor) -> th.Tensor:
+        return self.weighting.score(self.encode(observations), domains)  # type: ignore[operator]
+
+    def _official_round(self, batches: list[DomainReplayBufferSamples]) -> None:
+        encoded = [(self.encode(batch.observations), self._checked_domains(batch.domains)) for batch in batches]
+        self.weighting.train_round(encoded)  # type: ignore[operator]
+
+    def _batch_weights(
+        self, replay_data: DomainReplayBufferSamples, z: th.Tensor, plan: StepPlan
+    ) -> tuple[th.Tensor | None, th.Tensor | None]:
+        """
+        The reading's weights of this batch (:class:`sb3_sgfd.sgfd.weighting.SampleWeighting`), as (n, 1) weights of
+        the critic and of the actor (None where that loss is not reweighted or the reading gives none; weights
+        for the actor alone are not computed on the steps it does not learn).
+        """
+        if not plan.weighting:
+            return None, None
+        fresh = [
+            (self.encode(self.augment(batch.observations)[0]), self._checked_domains(batch.domains))
+            for batch in self._fresh_batches
+        ]
+        domains = self._checked_domains(replay_data.domains)
+        weights, figures, weighted = self.weighting(z, domains, WeightingPlan(*plan.weighting), fresh)
         for key, value in figures.items():
-            self.record(f"sgfd/{key}", value)
+            self.record(f"sgfd/{key}", value, when=weighted if key in WEIGHT_FIGURES else None)
         if weights is None:
             return None, None
         weights = weights.reshape(-1, 1)
@@ -304,12 +339,8 @@ class SGFD_SAC(EncoderSAC):
         # the RFF generator is seeded anew at every update, but its state between updates is part of a resume too
         return {**super().generators(), "weights": self.weighting.rff_generator}
 
-    def _fresh_features(self, n_samples: int, augmented: bool) -> tuple[th.Tensor, th.Tensor]:
-        """A fresh replay batch of ``n_samples``, encoded (of its first augmented view with ``augmented``), and
-        its domain labels: the classifier's extra batches."""
-        batch = self.replay_buffer.sample(n_samples, env=self._vec_normalize_env)  # type: ignore[union-attr]
-        observations = self.augment(batch.observations)[0] if augmented else batch.observations
-        return self.encode(observations), self._checked_domains(batch.domains)
+    def _update_optimizers(self) -> list[th.optim.Optimizer]:
+        return [*super()._update_optimizers(), self.weighting.classifier_optimizer]
 
     def _domain_count(self) -> int:
         return self.n_domains if self.n_domains is not None else super()._domain_count()
@@ -344,7 +375,7 @@ class SGFD_SAC(EncoderSAC):
         return domains
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "weighting", "_saved_weighting_replaced"]
+        return [*super()._excluded_save_params(), "weighting", "_saved_weighting_replaced", "_fresh_batches"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, saved_pytorch_variables = super()._get_torch_save_params()

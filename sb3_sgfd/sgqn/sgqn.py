@@ -109,8 +109,13 @@ class SGQNRepresentation(Representation):
         model.record("sgqn/consistency_loss", loss.detach())
         return self.consistency_coef * loss
 
+    def plan(self, update_index: int) -> tuple:
+        # whether the attribution predictor learns at this step
+        return (update_index % self.aux_update_interval == 0,)
+
     def update(self, model: Agent, batch: Batch) -> dict[str, th.Tensor]:
-        if batch.update_index % self.aux_update_interval != 0:
+        (predictor_learns,) = batch.plan
+        if not predictor_learns:
             return {}
         observations, actions = batch.observations[0], batch.replay_data.actions
         mask = self.attribution_mask(model, observations, actions)

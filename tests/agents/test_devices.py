@@ -50,16 +50,22 @@ def samples_of(buffer: DomainReplayBuffer, seed: int):
     return buffer.sample(16)
 
 
-@pytest.mark.cuda
-def test_on_a_gpu_a_batch_arrives_in_one_pinned_transfer_and_equals_the_cpu_batch():
-    gpu, cpu = filled_buffer("cuda"), filled_buffer("cpu")
-    on_gpu, on_cpu = samples_of(gpu, 3), samples_of(cpu, 3)
-    assert gpu._batch_transfer._staging.is_pinned()
-    assert on_gpu.observations.dtype == th.uint8 and on_gpu.observations.device.type == "cuda"
+#: Each test below runs on the CPU in CI and, marked ``cuda``, on a GPU where there is one: its logic is proven on
+#: the CPU before a GPU runs it (``bench/device_check.py`` runs the ``cuda`` ones on a GPU).
+DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.cuda)]
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_a_batch_arrives_in_one_transfer_and_equals_the_cpu_batch(device):
+    buffer, cpu = filled_buffer(device), filled_buffer("cpu")
+    on_device, on_cpu = samples_of(buffer, 3), samples_of(cpu, 3)
+    assert on_device.observations.dtype == th.uint8 and on_device.observations.device.type == device
     for name in ("observations", "actions", "next_observations", "dones", "rewards", "domains"):
-        assert th.equal(getattr(on_gpu, name).cpu(), getattr(on_cpu, name)), name
-    again = samples_of(gpu, 4)  # the staging buffer is reused once the previous copy is done
+        assert th.equal(getattr(on_device, name).cpu(), getattr(on_cpu, name)), name
+    again = samples_of(buffer, 4)  # on a GPU the staging buffer is reused once the previous copy is done
     assert th.equal(again.observations.cpu(), samples_of(cpu, 4).observations)
+    staging = buffer._batch_transfer._staging
+    assert (staging is not None and staging.is_pinned()) == (device == "cuda")  # pinned where a copy is async
 
 
 def state_env():
@@ -69,33 +75,59 @@ def state_env():
 TINY = dict(learning_starts=50, batch_size=16, seed=0, policy_kwargs=dict(net_arch=[16, 16]))
 
 
-@pytest.mark.cuda
+@pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("reading", ["paper", "official"])
-def test_a_model_trained_on_a_gpu_loads_on_the_cpu_and_back(reading, tmp_path):
-    model = SGFD_SAC("MlpPolicy", state_env(), reading=reading, classifier_start=0, device="cuda", **TINY)
+def test_a_model_trained_on_a_device_loads_on_the_cpu_and_back(device, reading, tmp_path):
+    # on CUDA its update is captured (compile_update's default there), on the CPU it is not: saved either way, it
+    # trains on in the other
+    model = SGFD_SAC("MlpPolicy", state_env(), reading=reading, classifier_start=0, device=device, **TINY)
     model.learn(200)
-    model.save(tmp_path / "gpu")
-    on_cpu = SGFD_SAC.load(tmp_path / "gpu", env=state_env(), device="cpu")
+    model.save(tmp_path / "first")
+    on_cpu = SGFD_SAC.load(tmp_path / "first", env=state_env(), device="cpu")
     assert all(p.device.type == "cpu" for p in on_cpu.weighting.parameters())
     if on_cpu.weighting.memory is not None:
         assert on_cpu.weighting.memory.features.device.type == "cpu"
     on_cpu.learn(100, reset_num_timesteps=False)
     on_cpu.save(tmp_path / "cpu")
-    back = SGFD_SAC.load(tmp_path / "cpu", env=state_env(), device="cuda")
-    assert next(back.policy.parameters()).device.type == "cuda"
+    back = SGFD_SAC.load(tmp_path / "cpu", env=state_env(), device=device)
+    assert next(back.policy.parameters()).device.type == device
     back.learn(100, reset_num_timesteps=False)
+    assert back._update.capture == (device == "cuda")
 
 
-@pytest.mark.cuda
-def test_the_papers_agent_trains_on_a_gpu_with_every_tensor_there():
+def tensors_of(model) -> dict[str, th.Tensor]:
+    """Every tensor a training step touches: parameters, optimiser states, the weighting's and objective's state,
+    the figures."""
+    found = {f"policy.{k}": v for k, v in model.policy.state_dict().items()}
+    found |= {f"weighting.{k}": v for k, v in model.weighting.state_dict().items()}
+    found |= {f"objective.{k}": v for k, v in model.representation_model.state_dict().items()}
+    optimizers = [*model._update_optimizers()]
+    for index, optimizer in enumerate(optimizers):
+        for state in optimizer.state.values():
+            found |= {f"optimizer {index}.{k}": v for k, v in state.items() if th.is_tensor(v) and k != "step"}
+    found |= {"figures.update": model._figures.update, "weighting.ready": model.weighting.ready}
+    return found
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_the_papers_agent_trains_with_every_tensor_on_its_device(device):
     from stable_baselines3.common.vec_env import VecFrameStack, VecTransposeImage
 
     env = VecTransposeImage(
         VecFrameStack(sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", image_size=24, render="fast"), 2)
     )
-    kwargs = dict(representation_kwargs=dict(hidden_dim=16), classifier_start=0, device="cuda", **TINY)
-    model = SGFD_SAC(AMBSPolicy, env, representation="ambs", augmentation_views=2, **kwargs)
-    model.learn(120)
-    assert model.logger.name_to_value["sgfd/weight_ess"] > 0
-    baseline = AMBS(AMBSPolicy, env, device="cuda", representation_kwargs=dict(hidden_dim=16), **TINY)
+    # the weighting starts within the run: its classifier from the first update, a threshold it reaches
+    settings = dict(classifier_start=0, accuracy_threshold=0.5, reweight_iters=3)
+    kwargs = dict(representation_kwargs=dict(hidden_dim=16), device=device, **TINY)
+    model = SGFD_SAC(AMBSPolicy, env, representation="ambs", augmentation_views=2, **settings, **kwargs)
+    model.learn(240)
+    assert bool(model.weighting.ready), "the weights never started"
+    model._log_figures()
+    assert 0 < model.logger.name_to_value["sgfd/weight_ess"] <= 1
+    wrong = {name: str(t.device) for name, t in tensors_of(model).items() if t.device.type != device}
+    assert not wrong, wrong
+    assert model.replay_buffer._batch_transfer.device.type == device
+    assert bool(model._update.graphs) == (device == "cuda")  # the step replayed as graphs on CUDA
+    baseline = AMBS(AMBSPolicy, env, **kwargs)
     baseline.learn(120)
+    assert bool(baseline._update.graphs) == (device == "cuda")

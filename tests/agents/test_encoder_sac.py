@@ -73,7 +73,7 @@ def test_with_every_coefficient_zero_each_agent_takes_sacs_steps_bit_for_bit(nam
     sac = SAC(policy, pixel_env(), replay_buffer_class=DomainReplayBuffer, **common).learn(240)
     agent = algo(policy, pixel_env(), representation_kwargs=zero, **AS_SAC, **common).learn(240)
     assert agent._n_updates == sac._n_updates > 0
-    assert agent.representation_model is not None and any(key.startswith(name) for key in agent._stats)
+    assert agent.representation_model is not None and any(key.startswith(name) for key in agent.logger.name_to_value)
     assert_same_parameters(sac.policy, agent.policy)
     assert th.equal(sac.log_ent_coef, agent.log_ent_coef)
 

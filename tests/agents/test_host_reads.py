@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecFrameStack, VecTransposeImage
 
@@ -69,14 +70,20 @@ def sgfd(reading: str = "paper", phase: str = "steady", **kwargs) -> SGFD_SAC:
         **COMMON,
     )
     if reading == "paper":  # whether the weights have started (the official reading's are always on)
-        model.weighting.ready = phase in ("steady", "mixed")
+        model.weighting.ready.fill_(phase in ("steady", "mixed"))
     return model
 
 
 def classifier_steps(model, gradient_steps: int) -> int:
-    """The steps SGFD's classifier optimiser takes in ``gradient_steps`` gradient steps."""
+    """The steps SGFD's classifier takes in ``gradient_steps`` gradient steps: the paper reading's Adam counts them
+    (a round's step masked off on the device counts none), the code reading's SGD steps only when the host says."""
+    optimizer = model.weighting.classifier_optimizer
+    if isinstance(optimizer, torch.optim.Adam):
+        before = int(optimizer.state.get(next(model.classifier.parameters()), {}).get("step", 0))
+        model.train(gradient_steps=gradient_steps, batch_size=model.batch_size)
+        return int(optimizer.state[next(model.classifier.parameters())]["step"]) - before
     steps: list[int] = []
-    handle = model.weighting.classifier_optimizer.register_step_post_hook(lambda *_: steps.append(1))
+    handle = optimizer.register_step_post_hook(lambda *_: steps.append(1))
     try:
         model.train(gradient_steps=gradient_steps, batch_size=model.batch_size)
     finally:

@@ -60,8 +60,8 @@ def test_the_weighting_state_of_a_version_0_1_0_model_is_restored():
     assert memory.updates == 9
     assert memory.features is not None and memory.features.shape == (16, 25)
     assert memory.logits is not None and memory.logits.shape == (16,)
-    assert SGFD_SAC.load(LEGACY / "sgfd_sac_ready.zip", device="cpu").weighting.ready is True
-    assert SGFD_SAC.load(LEGACY / "sgfd_sac.zip", device="cpu").weighting.ready is False
+    assert SGFD_SAC.load(LEGACY / "sgfd_sac_ready.zip", device="cpu").weighting.ready.item() is True
+    assert SGFD_SAC.load(LEGACY / "sgfd_sac.zip", device="cpu").weighting.ready.item() is False
 
 
 @pytest.mark.parametrize("name", ["sac", "sgfd_sac", "sgfd_sac_official", "ambs", "ted"])

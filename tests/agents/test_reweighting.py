@@ -8,8 +8,8 @@ import pytest
 import torch
 from torch import Tensor
 
-from sb3_sgfd.sgfd.decorrelation import (
-    WeightMemory,
+from sb3_sgfd.sgfd.decorrelation import WeightMemory
+from sb3_sgfd.sgfd.functional import (
     decorrelation_loss,
     effective_sample_size,
     learn_sample_weights,

@@ -1,4 +1,4 @@
-"""Tests for sb3_sgfd.sgfd.saliency: the domain classifier and the feature probabilities from its saliency."""
+"""The domain classifier and the feature probabilities from its saliency (sb3_sgfd.sgfd.weighting, .functional)."""
 
 from __future__ import annotations
 
@@ -9,14 +9,15 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from sb3_sgfd.sgfd.decorrelation import effective_sample_size, learn_sample_weights, weighted_pearson
-from sb3_sgfd.sgfd.saliency import (
-    DomainClassifier,
+from sb3_sgfd.sgfd.functional import (
     classifier_accuracy,
+    effective_sample_size,
     feature_probabilities,
+    learn_sample_weights,
     saliency_map,
-    scored_feature_probabilities,
+    weighted_pearson,
 )
+from sb3_sgfd.sgfd.weighting import DomainClassifier, accuracy, saliency_probabilities
 from sgfd_analysis.synthetic import DomainBatch, ScaledLogits, make_domain_batch
 
 N_TRAIN = 4096
@@ -210,15 +211,14 @@ def test_classifier_accuracy():
         classifier_accuracy(classifier, z, torch.tensor([0, 1]))
 
 
-def test_one_scored_pass_gives_the_probabilities_and_the_accuracy_of_two():
+def test_one_closed_form_pass_gives_the_probabilities_and_the_accuracy_of_two():
+    # what the paper reading computes of the classifier at every step, from one pass
     classifier, batch = trained_classifier(d=10, n_tied=4, seed=0)
     # labels that are partly wrong, so that the accuracy is neither 0 nor 1
     domains = torch.where(torch.arange(128) % 3 == 0, (batch.domains + 1) % 4, batch.domains)
-    probs, accuracy = scored_feature_probabilities(classifier, batch.z, domains, temperature=0.2, smoothing=0.1)
+    predicted, gradient = classifier.predictions_and_input_gradient(batch.z)
+    probs = saliency_probabilities(gradient.abs().mean(dim=0), temperature=0.2, normalize=True, smoothing=0.1)
     torch.testing.assert_close(probs, feature_probabilities(classifier, batch.z, temperature=0.2, smoothing=0.1))
-    assert accuracy == classifier_accuracy(classifier, batch.z, domains)
-    assert 0.5 < accuracy < 0.75
-    with pytest.raises(ValueError, match="smoothing"):
-        scored_feature_probabilities(classifier, batch.z, domains, smoothing=2.0)
-    with pytest.raises(ValueError, match="domains"):
-        scored_feature_probabilities(classifier, batch.z, domains[:5])
+    score = accuracy(predicted, domains)
+    assert score == classifier_accuracy(classifier, batch.z, domains)
+    assert 0.5 < score < 0.75

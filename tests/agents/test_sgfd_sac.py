@@ -10,9 +10,9 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 import sgfd_envs
 from sb3_sgfd import SGFD_SAC, DomainReplayBuffer, MlpPolicy
-from sb3_sgfd.sgfd.decorrelation import learn_sample_weights
-from sb3_sgfd.sgfd.saliency import feature_probabilities
-from sb3_sgfd.sgfd.weighting import SampleWeighting, Weights
+from sb3_sgfd.sgfd.functional import feature_probabilities, learn_sample_weights
+from sb3_sgfd.sgfd.settings import SGFDSettings
+from sb3_sgfd.sgfd.weighting import SampleWeighting, WeightingPlan, Weights
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 TINY = dict(
@@ -50,13 +50,17 @@ class FixedWeighting(SampleWeighting):
     """The same weight for every sample from the first step; counts the batches and records their features."""
 
     def __init__(self, value: float) -> None:
-        super().__init__(1, 2)
+        super().__init__(1, 2, SGFDSettings(), seed=0)
+        self.classifier_optimizer = th.optim.Adam(self.classifier.parameters())
         self.value, self.calls, self.features = value, 0, []
 
-    def forward(self, z, domains, step):
+    def plan(self, update_index, num_timesteps, weights_wanted):
+        return WeightingPlan(classifier_round=False, weights_wanted=weights_wanted)
+
+    def forward(self, z, domains, plan, fresh=()):
         self.calls += 1
         self.features.append(z)
-        return Weights(th.full((len(z),), self.value) if step.weights_wanted else None, {})
+        return Weights(th.full((len(z),), self.value) if plan.weights_wanted else None, {})
 
 
 def weighted_by(model: SGFD_SAC, weighting: SampleWeighting) -> SGFD_SAC:
@@ -114,12 +118,12 @@ class EncodingChecked(FixedWeighting):
         super().__init__(1.0)
         self.model, self.matches = model, []
 
-    def forward(self, z, domains, step):
+    def forward(self, z, domains, plan, fresh=()):
         critic = self.model.critic
         with th.no_grad():
             expected = critic.extract_features(self.model.batches[-1].observations, critic.features_extractor)
         self.matches.append(th.equal(z, expected) and not z.requires_grad)
-        return super().forward(z, domains, step)
+        return super().forward(z, domains, plan, fresh)
 
 
 def test_the_weights_reuse_the_critics_features_of_the_batch():
@@ -134,17 +138,17 @@ def test_the_weights_reuse_the_critics_features_of_the_batch():
 def test_learns_on_the_training_domains_and_its_weights_leave_one():
     model = reweighting_model()
     model.learn(600)
-    stats = {key.removeprefix("sgfd/"): values for key, values in model._stats.items()}
+    stats = {key.removeprefix("sgfd/"): value for key, value in model.logger.name_to_value.items()}  # the last call's
     assert model.weighting.ready
     assert model.n_domains == 4
-    assert stats["weight_min"][-1] < 1.0 < stats["weight_max"][-1]
-    assert 0.3 < stats["weight_ess"][-1] < 1.0
-    assert stats["decorrelation_loss_after"][-1] < stats["decorrelation_loss_before"][-1]
+    assert stats["weight_min"] < 1.0 < stats["weight_max"]
+    assert 0.3 < stats["weight_ess"] < 1.0
+    assert stats["decorrelation_loss_after"] < stats["decorrelation_loss_before"]
     # The most salient feature is the appended torso length: the one that tells the domains apart.
     batch = model.replay_buffer.sample(128)
     z = model.encode(batch.observations)
     assert int(feature_probabilities(model.classifier, z).argmax()) == z.shape[1] - 1
-    assert stats["top_saliency_feature"][-1] == z.shape[1] - 1
+    assert stats["top_saliency_feature"] == z.shape[1] - 1
     logged = model.logger.name_to_value
     assert {"sgfd/classifier_accuracy", "sgfd/weight_ess", "sgfd/decorrelation_loss_after"} <= set(logged)
 
@@ -219,7 +223,7 @@ def test_save_load_keeps_classifier_and_solver_and_continues(tmp_path):
     assert (loaded.weighting.ready, loaded.rff_seed, loaded.n_domains) == (True, model.rff_seed, 4)
     loaded.learn(300, reset_num_timesteps=False)
     assert loaded.num_timesteps == model.num_timesteps + 300
-    assert "sgfd/weight_ess" in loaded._stats
+    assert "sgfd/weight_ess" in loaded.logger.name_to_value
 
 
 def test_a_single_domain_warns_once_and_trains_as_sac():
@@ -229,7 +233,7 @@ def test_a_single_domain_warns_once_and_trains_as_sac():
         model.learn(300)
     assert len([w for w in record if "single domain" in str(w.message)]) == 1
     assert model.single_domain and not model.weighting.ready
-    assert "sgfd/weight_ess" not in model._stats
+    assert "sgfd/weight_ess" not in model.logger.name_to_value
 
 
 class NaNRewardAfter(gym.Wrapper):

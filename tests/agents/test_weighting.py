@@ -1,4 +1,4 @@
-"""SGFD's two readings (sb3_sgfd.sgfd.paper_reading, sb3_sgfd.sgfd.official_reading) and their switch on SGFD_SAC."""
+"""SGFD's two readings (sb3_sgfd.sgfd.weighting: PaperWeighting, OfficialWeighting) and their switch on SGFD_SAC."""
 
 from __future__ import annotations
 
@@ -11,18 +11,16 @@ from torch.nn import functional as F
 
 import sgfd_envs
 from sb3_sgfd import SGFD_SAC
-from sb3_sgfd.sgfd.decorrelation import WeightMemory, effective_sample_size, learn_sample_weights
-from sb3_sgfd.sgfd.official_reading import (
-    OfficialClassifier,
-    OfficialWeighting,
+from sb3_sgfd.sgfd.decorrelation import (
+    WeightMemory,
     official_fourier_features,
     official_loss,
     official_loss_and_gradient,
     solve_official_weights,
 )
-from sb3_sgfd.sgfd.paper_reading import PaperWeighting
+from sb3_sgfd.sgfd.functional import effective_sample_size, learn_sample_weights
 from sb3_sgfd.sgfd.settings import SGFDSettings
-from sb3_sgfd.sgfd.weighting import Step
+from sb3_sgfd.sgfd.weighting import DomainClassifier, OfficialWeighting, PaperWeighting, WeightingPlan
 from sgfd_analysis.synthetic import make_domain_batch
 from tests.agents.test_reweighting import seeded, tied_correlation, top_probs
 
@@ -158,7 +156,7 @@ class GuidedReLUFunction(torch.autograd.Function):
 
 def test_guided_saliency_is_guided_backprop_of_the_probabilities_averaged_over_classes():
     torch.manual_seed(0)
-    classifier = OfficialClassifier(6, 3, hidden_dim=16)
+    classifier = DomainClassifier(6, 3, hidden_dim=16, orthogonal=True)
     first, _, second, _, last = classifier.net
     guided = nn.Sequential(first, GuidedReLU(), second, GuidedReLU(), last)
     z = torch.randn(10, 6, requires_grad=True)
@@ -197,8 +195,8 @@ def test_official_reading_weights_the_actor_from_the_first_update_and_trains_its
     model.replay_buffer.sample = lambda n, env=None: samples.append(n) or sample(n, env=env)
     ess = []
     record = model.record
-    model.record = lambda key, value: (
-        (ess.append(float(value)) if key == "sgfd/weight_ess" else None) or record(key, value)
+    model.record = lambda key, value, **kwargs: (
+        (ess.append(float(value)) if key == "sgfd/weight_ess" else None) or record(key, value, **kwargs)
     )
     model.learn(500)
     # weights at every actor update (every 2nd step), never on the critic
@@ -221,12 +219,12 @@ def test_a_classifier_round_of_the_official_reading_is_sgd_on_cross_entropy_of_i
     )
     torch.manual_seed(1)
     weighting = OfficialWeighting(4, 2, settings, seed=0)
-    reference = OfficialClassifier(4, 2, hidden_dim=16)
+    reference = DomainClassifier(4, 2, hidden_dim=16, orthogonal=True)
     reference.load_state_dict(weighting.classifier.state_dict())
     fresh_z, fresh_labels = torch.randn(160, 4), torch.arange(160) % 2
     z, labels = torch.randn(32, 4), torch.arange(32) % 2
-    step = Step(0, 10, True, lambda n, augmented: (fresh_z[:n], fresh_labels[:n]))
-    weights, figures = weighting(z, labels, step)
+    weighting.train_round([(fresh_z, fresh_labels)])  # the round SGFD_SAC runs before the step, below the threshold
+    weights, figures, _ = weighting(z, labels, WeightingPlan(classifier_round=True, weights_wanted=True))
     optimizer = torch.optim.SGD(reference.parameters(), lr=0.01, momentum=0.9, weight_decay=1e-4)
     F.cross_entropy(torch.softmax(reference(fresh_z), dim=1), fresh_labels).backward()
     optimizer.step()

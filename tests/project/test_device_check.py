@@ -33,7 +33,12 @@ def limits_the_parts_run_with(check, budgets: dict[str, float], smoke: bool, mon
         calls.append((" ".join(command), budget))
         return 0, "", 0.0
 
+    def record_together(commands: list[list[str]], budget: float) -> tuple[list[str], float]:
+        calls.append((f"{len(commands)} x " + " ".join(commands[0]), budget))
+        return [""] * len(commands), 0.0
+
     monkeypatch.setattr(check, "run", record)
+    monkeypatch.setattr(check, "run_together", record_together)
     for part in check.PARTS:
         list(part(budgets, smoke))
     return calls
@@ -42,7 +47,7 @@ def limits_the_parts_run_with(check, budgets: dict[str, float], smoke: bool, mon
 def test_the_parts_time_limits_add_up_to_the_checks_worst_case():
     check = device_check()
     assert sum(check.BUDGETS.values()) + check.OWN_SECONDS <= check.TOTAL_SECONDS
-    assert set(check.BUDGETS) == {"cuda", "throughput", "learning sgfd_sac", "learning ambs"} | {
+    assert set(check.BUDGETS) == {"cuda", "throughput", "learning sgfd_sac", "concurrent 4", "concurrent 8"} | {
         f"overhead {policy}" for policy in ("mlp", "cnn", "agents")
     }
 
@@ -58,7 +63,10 @@ def test_every_part_runs_with_its_own_limit(smoke, monkeypatch):
     assert sorted(budget for _, budget in calls) == sorted(budgets.values())
     command_of = {budget: command for command, budget in calls}
     for name, budget in budgets.items():
-        assert all(word in command_of[budget] for word in name.split()), (name, command_of[budget])
+        # each word of the part's name in its command (the concurrent runs' count as "N x")
+        words = [f"{word} x" if word.isdigit() and name.startswith("concurrent") else word for word in name.split()]
+        words = [word for word in words if word != "concurrent"]
+        assert all(word in command_of[budget] for word in words), (name, command_of[budget])
 
 
 def test_a_check_stopped_from_outside_keeps_the_rows_it_measured(tmp_path):
@@ -90,12 +98,8 @@ def test_the_device_checks_smoke_run_fills_its_table(tmp_path):
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     rows = rows_of(out)
     checks = [row.split("|")[1].strip() for row in rows]
-    assert [check.split(" ")[0] for check in checks] == [
-        "CUDA",
-        "update_overhead",
-        "env_throughput",
-        "sgfd_sac",
-        "ambs",
-    ]
+    assert [check.split(" ")[0] for check in checks] == ["CUDA", "update_overhead", "env_throughput", "sgfd_sac", "2"]
     assert all(row.split("|")[2].strip() == "ok" for row in rows), rows
-    assert "updates/s: a 500k-update run in" in rows[-1]
+    assert "updates/s: a 500k-update run in" in rows[3] and "SGFD's phase" in rows[3]
+    assert "env step" in rows[3] and "sample and transfer" in rows[3]
+    assert "updates/s in all" in rows[4]

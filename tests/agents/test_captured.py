@@ -1,0 +1,175 @@
+"""The update as captured work (``compile_update=True``) on the CPU, the twin of what a GPU replays: the same training
+as the eager update for every agent, one plan per distinct step, the figures on the device."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch as th
+from torch.utils._python_dispatch import TorchDispatchMode
+
+from sb3_sgfd.common.captured import WARMUP_CALLS, DeviceFigures, masked_step, prepare_optimizers, set_learning_rate
+from tests.agents.tiny import AGENTS
+
+STEPS = 45
+
+
+def trained(name: str, compile_update: bool, steps: int = STEPS):
+    """The agent after its buffer is filled and ``steps`` gradient steps from the same random streams."""
+    model = AGENTS[name](compile_update=compile_update)
+    model.learn(model.learning_starts)  # fills the buffer; no gradient step yet
+    model.num_timesteps = 10**6  # past SGFD's classifier_start
+    th.manual_seed(1)
+    np.random.seed(1)
+    model.train(gradient_steps=steps, batch_size=model.batch_size)
+    return model
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(AGENTS))
+def test_the_compiled_update_trains_as_the_eager_one(name):
+    eager, compiled = trained(name, False), trained(name, True)
+    assert eager._n_updates == compiled._n_updates == STEPS
+    for attribute in ("actions", "observations", "rewards"):
+        assert np.array_equal(getattr(eager.replay_buffer, attribute), getattr(compiled.replay_buffer, attribute))
+    models = [("policy", eager.policy, compiled.policy)]
+    if eager.representation_model is not None:
+        models.append(("objective", eager.representation_model, compiled.representation_model))
+    if hasattr(eager, "weighting"):
+        models.append(("weighting", eager.weighting, compiled.weighting))
+    for part, a, b in models:
+        for (key, expected), (_, got) in zip(a.state_dict().items(), b.state_dict().items(), strict=True):
+            gap = (got.double() - expected.double()).norm() / expected.double().norm().clamp_min(1e-12)
+            assert gap <= 1e-3, (part, key, float(gap))
+    # every part moved: the comparison is not between two untrained models
+    fresh = AGENTS[name](compile_update=False)
+    assert any(not th.equal(p, q) for p, q in zip(fresh.policy.parameters(), compiled.policy.parameters(), strict=True))
+    if name.startswith("SGFD") and "official" not in name:
+        assert bool(eager.weighting.ready) and bool(compiled.weighting.ready), "the weights never started"
+
+
+class OpSequence(TorchDispatchMode):
+    """The operators a piece of a step dispatches, in order."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.ops: list[str] = []
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        self.ops.append(str(func))
+        return func(*args, **(kwargs or {}))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["SGFD paper", "SGFD official", "SGQN", "AMBS"])
+def test_each_plan_is_one_sequence_of_operators(name):
+    # A captured graph replays what its first capture ran: every step with the same plan must run the same
+    # operators, or a decision taken in Python is missing from the plan.
+    model = AGENTS[name](compile_update=True, actor_update_interval=2)
+    model.learn(model.learning_starts)
+    model.num_timesteps = 10**6
+    runner_run = None
+    sequences: dict = {}
+
+    calls: dict = {}
+
+    def recorded(key, piece, *args, **kwargs):
+        with OpSequence() as ops:
+            result = runner_run(key, piece, *args, **kwargs)
+        calls[key] = calls.get(key, 0) + 1
+        if calls[key] > WARMUP_CALLS:  # what a GPU captures: the calls after the eager warm-up
+            sequences.setdefault(key, set()).add(tuple(ops.ops))
+        return result
+
+    model._prepare_update()
+    runner_run, model._update.run = model._update.run, recorded
+    model.train(gradient_steps=16, batch_size=model.batch_size)
+    assert len(sequences) >= 2  # at least two plans: the actor learns every other step
+    for key, seen in sequences.items():
+        assert len(seen) == 1, f"plan {key} ran {len(seen)} different sequences of operators"
+
+
+def test_device_figures_sum_on_the_device_and_stop_at_the_first_non_finite_value():
+    figures = DeviceFigures("cpu")
+    figures.start(10)
+    for value in (1.0, 2.0, 4.0):
+        figures.add("loss", th.tensor(value))
+        figures.add("only when", th.tensor(value), when=th.tensor(value > 1.5))
+        figures.check("loss", th.tensor(value))
+        figures.end_update()
+    assert figures.read() == {"loss": 7.0 / 3, "only when": 3.0}
+    assert figures.read() == {}  # cleared by the read
+    figures.check("critic loss", th.tensor(float("nan")))
+    figures.end_update()
+    figures.check("critic loss", th.tensor(float("inf")))
+    with pytest.raises(RuntimeError, match=r"non-finite critic loss at update 13"):
+        figures.raise_if_not_finite()
+
+
+@pytest.mark.parametrize("take", [True, False])
+def test_a_masked_step_is_the_step_or_nothing(take):
+    th.manual_seed(0)
+    layer = th.nn.Linear(3, 2)
+    reference = th.nn.Linear(3, 2)
+    reference.load_state_dict(layer.state_dict())
+    optimizers = [th.optim.Adam(module.parameters(), lr=0.1) for module in (layer, reference)]
+    for _ in range(3):  # the first step makes the state, the next ones use it
+        for module, optimizer in zip((layer, reference), optimizers, strict=True):
+            optimizer.zero_grad()
+            module(th.ones(4, 3)).square().sum().backward()
+        masked_step(optimizers[0], th.tensor(take))
+        if take:
+            optimizers[1].step()
+    for got, expected in zip(layer.parameters(), reference.parameters(), strict=True):
+        assert th.equal(got, expected)
+    state = optimizers[0].state[layer.weight]
+    assert take or (float(state["step"]) == 0 and not state["exp_avg"].any())
+
+
+@pytest.mark.slow
+def test_save_load_and_set_parameters_keep_the_compiled_update(tmp_path):
+    model = trained("SGFD official", compile_update=True, steps=10)
+    model.save(tmp_path / "model")
+    model.save_replay_buffer(tmp_path / "buffer")
+    loaded = type(model).load(tmp_path / "model", env=model.env)
+    loaded.load_replay_buffer(tmp_path / "buffer")
+    assert loaded.compile_update is True and loaded._captures_update()  # saved with the model
+    loaded.num_timesteps = model.num_timesteps
+    loaded.train(gradient_steps=5, batch_size=loaded.batch_size)
+    assert loaded._n_updates == 15 and all(th.isfinite(p).all() for p in loaded.policy.parameters())
+    # new parameters: the runner forgets its graphs, the optimisers are set up again, training goes on from them
+    given = {key: value.clone() for key, value in model.policy.state_dict().items()}
+    loaded.set_parameters(model.get_parameters())
+    assert not loaded._optimizers_prepared and not loaded._update.graphs
+    assert all(th.equal(value, given[key]) for key, value in loaded.policy.state_dict().items())
+    loaded.train(gradient_steps=5, batch_size=loaded.batch_size)
+    assert loaded._optimizers_prepared and all(th.isfinite(p).all() for p in loaded.policy.parameters())
+
+
+def test_optimisers_set_up_for_a_captured_update_step_as_before_and_back():
+    # what a captured update does to the optimisers (on CUDA also capturable), and back to SB3's when eager
+    th.manual_seed(0)
+    layers = [th.nn.Linear(3, 2) for _ in range(2)]
+    layers[1].load_state_dict(layers[0].state_dict())
+    optimizers = [th.optim.Adam(layer.parameters(), lr=0.1) for layer in layers]
+    extra = th.optim.SGD(th.nn.Linear(2, 1).parameters(), lr=0.1, momentum=0.9)
+
+    def step(index: int) -> None:
+        optimizers[index].zero_grad()
+        layers[index](th.ones(4, 3)).square().sum().backward()
+        optimizers[index].step()
+
+    step(0), step(1)
+    prepare_optimizers([optimizers[1], extra], captured=True)
+    group = optimizers[1].param_groups[0]
+    assert group["fused"] and th.is_tensor(group["lr"]) and th.is_tensor(optimizers[1].state[layers[1].weight]["step"])
+    assert extra.param_groups[0]["fused"] and not th.is_tensor(extra.param_groups[0]["lr"])
+    set_learning_rate(optimizers[1], 0.05)
+    set_learning_rate(optimizers[0], 0.05)
+    assert th.is_tensor(group["lr"]) and abs(float(group["lr"]) - 0.05) < 1e-8  # filled in place, where a graph reads
+    step(0), step(1)
+    for a, b in zip(layers[0].parameters(), layers[1].parameters(), strict=True):
+        th.testing.assert_close(a, b)  # fused or not, the same Adam
+    prepare_optimizers([optimizers[1]], captured=False)
+    assert group["fused"] is None and abs(group["lr"] - 0.05) < 1e-8 and not group["capturable"]
+    step(1)
