@@ -305,7 +305,7 @@ class CapturedUpdateMixin:
     before SB3's ``SAC``): the figures on the device, the optimisers set up for the way the update runs, the learning
     rate set in place, and the graphs forgotten whenever parameters or states are replaced."""
 
-    compile_update: bool | None
+    compile_update: bool
     device: th.device
     logger: Any
     lr_schedule: Callable[[float], float]
@@ -333,8 +333,9 @@ class CapturedUpdateMixin:
             self._figures.check(check_finite, value)
 
     def _captures_update(self) -> bool:
-        """Whether the update runs as captured (and compiled) work: ``compile_update``, by default on CUDA only."""
-        return self.compile_update if self.compile_update is not None else th.device(self.device).type == "cuda"
+        """Whether the update runs as captured (and compiled) work (``compile_update``; a model saved before it
+        existed has none)."""
+        return bool(getattr(self, "compile_update", False))
 
     def _prepare_update(self) -> None:
         """The update's runner, optimisers and figures, made or fixed up before the steps (after a load, a

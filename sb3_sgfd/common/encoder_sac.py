@@ -76,7 +76,8 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
         critic's step (the same values on states, where the features are the observations)
     :param compile_update: Run each gradient step as captured work (:mod:`sb3_sgfd.common.captured`): on CUDA one
         CUDA-graph replay per step plan with fused optimisers, the figures read once per log interval, what fuses
-        compiled; None: on CUDA only; False: SB3's eager step
+        compiled; on the CPU the same path without graphs. Off by default until a GPU has measured it
+        (``bench/device_check.py``)
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
@@ -131,7 +132,7 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
         representation: str | None = None,
         representation_kwargs: dict[str, Any] | None = None,
         actor_reuses_features: bool = True,
-        compile_update: bool | None = None,
+        compile_update: bool = False,
         _init_setup_model: bool = True,
     ):
         # the objective checks its own arguments when it is built (in _setup_model: SB3's load builds no objective here)

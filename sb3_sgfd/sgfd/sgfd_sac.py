@@ -103,7 +103,7 @@ class SGFD_SAC(EncoderSAC):
         representation: str | None = None,
         representation_kwargs: dict[str, Any] | None = None,
         actor_reuses_features: bool = True,
-        compile_update: bool | None = None,
+        compile_update: bool = False,
         reading: str | None = None,
         n_domains: int | None = None,
         sgfd: SGFDSettings | None = None,

@@ -78,18 +78,22 @@ TINY = dict(learning_starts=50, batch_size=16, seed=0, policy_kwargs=dict(net_ar
 @pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("reading", ["paper", "official"])
 def test_a_model_trained_on_a_device_loads_on_the_cpu_and_back(device, reading, tmp_path):
-    # on CUDA its update is captured (compile_update's default there), on the CPU it is not: saved either way, it
-    # trains on in the other
-    model = SGFD_SAC("MlpPolicy", state_env(), reading=reading, classifier_start=0, device=device, **TINY)
+    # its update captured on CUDA (on the CPU the same path without graphs), then eager on the CPU, then captured
+    # again: saved from either way, it trains on in the other
+    model = SGFD_SAC(
+        "MlpPolicy", state_env(), reading=reading, classifier_start=0, device=device, compile_update=True, **TINY
+    )
     model.learn(200)
     model.save(tmp_path / "first")
     on_cpu = SGFD_SAC.load(tmp_path / "first", env=state_env(), device="cpu")
     assert all(p.device.type == "cpu" for p in on_cpu.weighting.parameters())
     if on_cpu.weighting.memory is not None:
         assert on_cpu.weighting.memory.features.device.type == "cpu"
+    on_cpu.compile_update = False
     on_cpu.learn(100, reset_num_timesteps=False)
     on_cpu.save(tmp_path / "cpu")
     back = SGFD_SAC.load(tmp_path / "cpu", env=state_env(), device=device)
+    back.compile_update = True
     assert next(back.policy.parameters()).device.type == device
     back.learn(100, reset_num_timesteps=False)
     assert back._update.capture == (device == "cuda")
@@ -118,7 +122,7 @@ def test_the_papers_agent_trains_with_every_tensor_on_its_device(device):
     )
     # the weighting starts within the run: its classifier from the first update, a threshold it reaches
     settings = dict(classifier_start=0, accuracy_threshold=0.5, reweight_iters=3)
-    kwargs = dict(representation_kwargs=dict(hidden_dim=16), device=device, **TINY)
+    kwargs = dict(representation_kwargs=dict(hidden_dim=16), device=device, compile_update=True, **TINY)
     model = SGFD_SAC(AMBSPolicy, env, representation="ambs", augmentation_views=2, **settings, **kwargs)
     model.learn(240)
     assert bool(model.weighting.ready), "the weights never started"
