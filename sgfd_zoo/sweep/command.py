@@ -11,6 +11,10 @@ at a checkpoint, as it stops ``sgfd-zoo train``. A run folder with unreadable fi
 around; a run another process writes (its lock held) is left alone and reported; if the progress board dies,
 the runs go on without live progress.
 
+Where Ray sees GPUs, the runs share them by a rule from each GPU's share of the node's cores
+(:func:`sgfd_zoo.sweep.plan.packing`: 8 paper-scale runs on a GPU with 16 cores, each with 1 torch thread and its
+training envs in processes of their own); ``--gpus-per-run`` sets the share, ``--gpus-per-run 0`` trains on the CPUs.
+
 Exit status: 0 when every run finished; 1 when one failed or was left alone; 75 when the Ray cluster went away
 (the runs keep their checkpoints); 130 on Ctrl-C. Each but 0 ends with a summary (what finished, what failed
 and why, what stopped at which checkpoint) and the command that continues the sweep.
