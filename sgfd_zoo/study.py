@@ -9,6 +9,8 @@ evaluation; :class:`sgfd_zoo.runs.records.RunRecord`), and, computed from all th
 of SGFD's weights over training (``plots/``, ``diagnostics.md``), with the exact command and the package
 versions. Models, replay buffers and checkpoints stay in the log folder. A recorded cell is not trained again:
 committed, the records let a session on another machine (without the log folder) continue the study.
+``--plan`` trains nothing: it prints the runs still to train and what they cost on a GPU, at the rates of the latest
+device check (:mod:`sgfd_zoo.sweep.cost`).
 
 A spec (yaml):
 
@@ -38,13 +40,14 @@ import numpy as np
 import yaml
 
 from sgfd_zoo.algos import SGFD_ALGOS, algo_sort_key, column_name
-from sgfd_zoo.arguments import ZooError, check_at_least, checked_names
+from sgfd_zoo.arguments import ZooError, check_at_least, checked_names, has_flag
 from sgfd_zoo.report import evaluate
 from sgfd_zoo.report.statistics import write_statistics
 from sgfd_zoo.runs import provenance
 from sgfd_zoo.runs.folders import RunFolder, env_name, find_runs
 from sgfd_zoo.runs.records import RunRecord, find_records
-from sgfd_zoo.sweep import command as sweep
+from sgfd_zoo.sweep.cost import cost_lines, plan_runs
+from sgfd_zoo.sweep.plan import gpu_fraction
 
 SPEC_KEYS = {"name", "description", "algos", "envs", "seeds", "train", "n_episodes", "reference"}
 TOP_SALIENCY = "sgfd/top_saliency_feature"  # the index of the most salient feature, per logged step
@@ -290,6 +293,26 @@ def _cpus() -> int:
     return os.cpu_count() or 1
 
 
+def plan_lines(spec: dict[str, Any], out: Path, gpus: int, gpus_per_run: float | None) -> list[str]:
+    """What ``sgfd-zoo study SPEC --plan`` prints: the spec's runs, those recorded already, and what the others cost
+    (:func:`sgfd_zoo.sweep.cost.cost_lines`).
+
+    :param spec: the checked spec
+    :param out: the spec's folder (its records)
+    :param gpus: the GPUs the wall time is for
+    :param gpus_per_run: ``--gpus-per-run``; None: the packing rule's
+    """
+    recorded = {(record.algo, record.env_id, record.seed) for record in study_records(spec, out)}
+    runs = plan_runs(spec["algos"], spec["envs"], spec["seeds"], spec["train"], spec["n_episodes"])
+    todo = [run for run in runs if (run.algo, run.env_id, run.seed) not in recorded]
+    scale = "the quick configuration" if has_flag(spec["train"], "--quick") else "the zoo's paper settings"
+    head = (
+        f"study {spec['name']}: {len(spec['algos'])} algos x {len(spec['envs'])} envs x {len(spec['seeds'])} seeds "
+        f"= {len(runs)} runs at {scale}, {len(runs) - len(todo)} recorded in {out / 'runs'}, {len(todo)} to train"
+    )
+    return [head, *cost_lines(todo, gpus, gpus_per_run)]
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(
         prog="sgfd-zoo study", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -298,15 +321,38 @@ def main(argv: list[str]) -> int:
     parser.add_argument("-f", "--folder", type=Path, help="log folder of the runs (default: logs/studies/<name>)")
     parser.add_argument("--export-only", action="store_true", help="no training: evaluate and export what is there")
     parser.add_argument("--progress-interval", type=float, default=60.0, help="seconds between progress blocks")
+    parser.add_argument(
+        "--gpus-per-run",
+        metavar="FRACTION",
+        help="each run's share of a GPU, as sgfd-zoo sweep takes it (0.25: 4 runs on a GPU; default: where there is "
+        "a GPU, the packing rule's, see sgfd_zoo.sweep.plan.packing)",
+    )
+    parser.add_argument(
+        "--plan",
+        action="store_true",
+        help="train nothing: print the runs still to train, the updates each, and their GPU-hours and wall time at "
+        "the rates of the latest device check (sgfd_zoo/sweep/device_rates.csv)",
+    )
+    parser.add_argument("--gpus", type=int, help="with --plan: the GPUs the wall time is for (default: 1)")
     args, extra = parser.parse_known_args(argv)
     if extra:
         raise ZooError(f"unknown option(s) {extra}: training flags belong in the spec's train list")
+    gpus_per_run = gpu_fraction(args.gpus_per_run)
+    if args.gpus is not None and not args.plan:
+        raise ZooError("--gpus sizes the --plan's wall time; a study trains on the GPUs Ray finds")
+    check_at_least("--gpus", args.gpus, 1)
     spec = read_spec(args.spec)
     folder = (args.folder or Path("logs/studies") / spec["name"]).resolve()
     out = args.spec.parent
+    if args.plan:
+        print("\n".join(plan_lines(spec, out, args.gpus or 1, gpus_per_run)))
+        return 0
+    from sgfd_zoo.sweep import command as sweep  # here: a plan imports no training stack (torch, Ray)
+
     # The command that trains and exports (an --export-only pass records the study's own command, not itself).
     command = shlex.join(["sgfd-zoo", "study", *(arg for arg in argv if arg != "--export-only")])
     sweep_argv = [*sweep_arguments(spec, folder), "--progress-interval", str(args.progress_interval)]
+    sweep_argv += [] if args.gpus_per_run is None else ["--gpus-per-run", args.gpus_per_run]
     recorded = {(record.algo, record.env_id, record.seed) for record in study_records(spec, out)}
     if args.export_only:
         log_runs = find_runs(folder, spec["algos"], spec["envs"])

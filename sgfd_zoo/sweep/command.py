@@ -11,6 +11,10 @@ at a checkpoint, as it stops ``sgfd-zoo train``. A run folder with unreadable fi
 around; a run another process writes (its lock held) is left alone and reported; if the progress board dies,
 the runs go on without live progress.
 
+Where Ray sees GPUs, the runs share them by a rule from each GPU's share of the node's cores
+(:func:`sgfd_zoo.sweep.plan.packing`: 8 paper-scale runs on a GPU with 16 cores, each with 1 torch thread and its
+training envs in processes of their own); ``--gpus-per-run`` sets the share, ``--gpus-per-run 0`` trains on the CPUs.
+
 Exit status: 0 when every run finished; 1 when one failed or was left alone; 75 when the Ray cluster went away
 (the runs keep their checkpoints); 130 on Ctrl-C. Each but 0 ends with a summary (what finished, what failed
 and why, what stopped at which checkpoint) and the command that continues the sweep.
@@ -36,7 +40,7 @@ from sgfd_zoo.arguments import ZooError, check_log_folder, checked_names, flag_v
 from sgfd_zoo.exit_codes import INTERRUPTED
 from sgfd_zoo.report import evaluate
 from sgfd_zoo.runs.folders import find_runs
-from sgfd_zoo.sweep.plan import Job, locked_runs, plan
+from sgfd_zoo.sweep.plan import Job, envs_per_run, gpu_fraction, locked_runs, plan
 from sgfd_zoo.sweep.ray_runs import ClusterLost, run_jobs
 
 # Train flags the sweep sets per run itself, and what to use instead.
@@ -79,9 +83,19 @@ def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
         "folder must then be a path every node sees. Default: a Ray instance on this machine, for this sweep",
     )
     parser.add_argument("--num-cpus", type=int, help="CPUs of the local Ray instance (default: all)")
-    parser.add_argument("--cpus-per-run", type=float, default=1.0, help="CPUs Ray reserves for each run (default: 1)")
     parser.add_argument(
-        "--gpus-per-run", type=float, default=0.0, help="GPUs for each run; fractions share one (default: 0)"
+        "--cpus-per-run",
+        type=float,
+        help="CPUs Ray reserves for each run (default: 1 without a GPU, and as many torch threads; with one, the "
+        "GPU's share of the node's cores)",
+    )
+    parser.add_argument(
+        "--gpus-per-run",
+        metavar="FRACTION",
+        help="GPUs for each run: 0.25 packs 4 runs on a GPU, 0 trains on the CPUs. Default: where Ray sees GPUs, "
+        "as many runs per GPU as the node's cores feed (up to 8; 2 cores a run at paper scale: see "
+        "sgfd_zoo.sweep.plan.packing), each with 1 torch thread and its training envs in processes of their own; "
+        "else 0",
     )
     parser.add_argument(
         "--max-retries",
@@ -111,10 +125,11 @@ def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
     for flag, instead in SWEEP_OWNED_FLAGS.items():
         if has_flag(train_args, flag):
             raise ZooError(f"{flag} is set per run by the sweep; use {instead}")
-    if args.cpus_per_run <= 0:
+    if args.cpus_per_run is not None and args.cpus_per_run <= 0:
         raise ZooError(f"--cpus-per-run must be > 0, got {args.cpus_per_run}")
-    if args.gpus_per_run < 0:
-        raise ZooError(f"--gpus-per-run must be >= 0, got {args.gpus_per_run}")
+    args.gpus_per_run = gpu_fraction(args.gpus_per_run)
+    if args.gpus_per_run is None and flag_value(train_args, "--device") == "cpu":
+        args.gpus_per_run = 0.0  # runs told to train on the CPU take no GPU
     if args.max_retries < 0:
         raise ZooError(f"--max-retries must be >= 0, got {args.max_retries}")
     if args.n_episodes < 1:
@@ -124,15 +139,14 @@ def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
     if args.num_cpus is not None and args.num_cpus < 1:
         raise ZooError(f"--num-cpus must be >= 1, got {args.num_cpus}")
     local_cpus = args.num_cpus or os.cpu_count() or 1
-    if args.address is None and args.cpus_per_run > local_cpus:
+    if args.address is None and args.cpus_per_run is not None and args.cpus_per_run > local_cpus:
         raise ZooError(f"--cpus-per-run {args.cpus_per_run:g} is more than the {local_cpus} CPUs of the local instance")
     check_log_folder("--folder", args.folder)
     args.folder = args.folder.resolve()
-    # torch's threads per run follow the CPUs Ray reserves for it, unless the user says otherwise.
     if args.progress_interval <= 0:
         raise ZooError(f"--progress-interval must be > 0, got {args.progress_interval:g}")
-    if not has_flag(train_args, "--num-threads"):
-        train_args += ["--num-threads", str(max(math.floor(args.cpus_per_run), 1))]
+    # How many envs a run trains on: the packing rule gives each env a process of its own on a GPU node.
+    args.envs_per_run = envs_per_run(args.algos, args.envs, quick=has_flag(train_args, "--quick"))
     return args, train_args
 
 
@@ -226,7 +240,7 @@ def _evaluate(args: argparse.Namespace, train_args: list[str]) -> None:
         print("sweep: no finished run to evaluate")
         return
     # Evaluation is small-batch inference: as many threads as each run had.
-    threads = flag_value(train_args, "--num-threads") or "1"
+    threads = flag_value(train_args, "--num-threads") or str(max(math.floor(args.cpus_per_run or 1), 1))
     evaluate_args = ["-f", str(args.folder), "--algo", *args.algos, "--env", *args.envs]
     evaluate_args += ["--reference", args.reference]
     evaluate.main([*evaluate_args, "--n-episodes", str(args.n_episodes), "--num-threads", threads])

@@ -1,12 +1,17 @@
-"""The sweep's plan: which (algorithm, env, seed) runs are still to train, and the run folder each trains in.
-Pure: it reads the log folder and starts nothing (no Ray)."""
+"""The sweep's plan: which (algorithm, env, seed) runs are still to train, the run folder each trains in, and how
+many runs share a GPU (:func:`packing`). Pure: it reads the log folder and starts nothing (no Ray, no torch)."""
 
 from __future__ import annotations
 
+import argparse
+import math
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import sgfd_envs
+from sgfd_zoo.algos import hyperparams_entry
+from sgfd_zoo.arguments import ZooError, has_flag
 from sgfd_zoo.runs.folders import RunFolder, find_runs, runs_by_id
 from sgfd_zoo.runs.locks import RunLocked, live_holder
 
@@ -131,3 +136,151 @@ def locked_runs(jobs: Sequence[Job]) -> list[tuple[Job, str]]:
         if (holder := live_holder(job.run_dir)) is not None:
             locked.append((job, f"refused: {RunLocked.being_written(job.run_dir, holder)} (one writer at a time)"))
     return locked
+
+
+# -- runs on a GPU ----------------------------------------------------------------------------------------------
+# The packing rule's constants, in one place: bench/device_check.py measures 1, 4 and 8 concurrent paper-scale runs
+# on one GPU; tune these from its table (sgfd_zoo/sweep/device_rates.csv).
+
+#: Env processes one core keeps up with. A paper-scale env process renders and steps for about 2 ms per agent step
+#: (EGL on the GPU), while its run's learner spends tens of milliseconds per update: each env process idles most of
+#: the time, and four share a core.
+ENV_PROCESSES_PER_CORE = 4
+#: The most runs one GPU holds: 8 is the most measured at once (2026-12-04, H200 with 16 cores: 8 runs 74.4 updates/s
+#: in all, 4 runs 66.5, 1 run 18.4).
+MAX_RUNS_PER_GPU = 8
+#: torch's CPU threads of a run whose networks are on a GPU: its CPU side is Python, kernel launches and the replay
+#: buffer's numpy indexing, which more threads do not speed up; they would only spin beside the env processes.
+TORCH_THREADS_WITH_GPU = 1
+#: Ray counts resources in steps of 1e-4: a GPU fraction is rounded down to it, so that k runs fit one GPU.
+RAY_RESOURCE_STEP = 1e-4
+
+
+@dataclass(frozen=True)
+class Packing:
+    """
+    How runs share a node's GPUs and cores.
+
+    :param gpus_per_run: Ray's ``num_gpus`` of each run (0.125: 8 runs on a GPU)
+    :param cpus_per_run: Ray's ``num_cpus`` of each run: the GPU's share of the node's cores
+    :param env_processes: subprocess envs per run (0: its envs step in the run's own process)
+    :param torch_threads: torch's CPU threads per run
+    """
+
+    gpus_per_run: float
+    cpus_per_run: float
+    env_processes: int
+    torch_threads: int
+
+    @property
+    def runs_per_gpu(self) -> int:
+        """How many runs one GPU holds at once."""
+        if self.gpus_per_run >= 1:
+            return 1
+        return int(1 / self.gpus_per_run + 1e-6) if self.gpus_per_run > 0 else 0
+
+    def __str__(self) -> str:
+        envs = f"{self.env_processes} env processes" if self.env_processes else "its envs in its own process"
+        threads = f"{self.torch_threads} torch thread{'s' if self.torch_threads > 1 else ''}"
+        share = f"{self.runs_per_gpu} run{'s' if self.runs_per_gpu > 1 else ''} per GPU"
+        if self.gpus_per_run > 1:
+            share = f"{self.gpus_per_run:g} GPUs per run"
+        return f"{share} (--gpus-per-run {self.gpus_per_run:g}); each {self.cpus_per_run:g} CPUs, {threads} and {envs}"
+
+
+def packing(cores_per_gpu: float, envs_per_run: int, gpus_per_run: float | None = None) -> Packing:
+    """
+    How paper-scale runs share a GPU node (the rule the sweep follows when its runs have a GPU):
+
+    - a run needs one core for its learner and one for every :data:`ENV_PROCESSES_PER_CORE` of its env processes
+      (each training domain an env process: 4 at paper scale, so 2 cores a run);
+    - a GPU holds as many runs as its share of the node's cores feeds, at most :data:`MAX_RUNS_PER_GPU`
+      (16 cores a GPU: 8 runs; 8 cores: 4);
+    - each run reserves the GPU's cores divided among its runs, and takes :data:`TORCH_THREADS_WITH_GPU` torch
+      threads.
+
+    :param cores_per_gpu: the node's CPU cores divided by its GPUs
+    :param envs_per_run: training envs of a run (its training domains: ``n_envs``)
+    :param gpus_per_run: the GPU fraction asked for (``--gpus-per-run``); None: the rule's
+    """
+    env_processes = envs_per_run if envs_per_run > 1 else 0
+    if gpus_per_run is None:
+        cores_per_run = 1 + math.ceil(env_processes / ENV_PROCESSES_PER_CORE)
+        runs = min(max(int(cores_per_gpu // cores_per_run), 1), MAX_RUNS_PER_GPU)
+        gpus_per_run = math.floor(1 / runs / RAY_RESOURCE_STEP) * RAY_RESOURCE_STEP
+    return Packing(
+        gpus_per_run=gpus_per_run,
+        cpus_per_run=round(cores_per_gpu * gpus_per_run, 4),
+        env_processes=env_processes,
+        torch_threads=TORCH_THREADS_WITH_GPU,
+    )
+
+
+def gpu_fraction(text: str | None) -> float | None:
+    """The ``--gpus-per-run`` value: a fraction of a GPU up to 1 (Ray packs ``1 / fraction`` runs on one), a whole
+    number of GPUs, or 0 (none); None when not given. Anything else is refused in one line.
+
+    :param text: the flag's value as given
+    """
+    if text is None:
+        return None
+    expected = "expected a fraction of a GPU such as 0.25 (4 runs on one GPU), a whole number of GPUs, or 0"
+    try:
+        value = float(text)
+    except ValueError:
+        raise ZooError(f"--gpus-per-run {text!r}: {expected}") from None
+    if not math.isfinite(value) or value < 0:
+        raise ZooError(f"--gpus-per-run {text}: {expected}")
+    if value > 1 and not value.is_integer():
+        raise ZooError(f"--gpus-per-run {text}: Ray gives a run more than one GPU only whole; {expected}")
+    if 0 < value < RAY_RESOURCE_STEP:
+        raise ZooError(f"--gpus-per-run {text}: Ray counts GPUs in steps of {RAY_RESOURCE_STEP:g}; {expected}")
+    return value
+
+
+def envs_per_run(algos: Sequence[str], env_ids: Sequence[str], quick: bool = False) -> int:
+    """The most training envs a run of these (algorithm, env) pairs has: its yaml's ``n_envs``, else one per training
+    domain (as the zoo builds it).
+
+    :param algos: algorithm keys
+    :param env_ids: env ids
+    :param quick: the quick configuration's yaml
+    """
+    counts = [
+        int(hyperparams_entry(algo, env_id, quick).get("n_envs") or sgfd_envs.n_domains(env_id, "train"))
+        for algo in algos
+        for env_id in env_ids
+    ]
+    return max(counts, default=1)
+
+
+def run_resources(
+    args: argparse.Namespace, train_args: list[str], cores_per_gpu: float | None
+) -> tuple[list[str], Packing | None]:
+    """Set ``args.cpus_per_run`` and ``args.gpus_per_run`` (Ray's reservation of each run) once the cluster is known,
+    and return the train flags with each run's torch threads and, on a GPU, its env processes (flags the user gave
+    are kept), with the packing on a GPU (None without). Without a GPU a run reserves 1 CPU and takes as many torch
+    threads as CPUs, as before GPUs were packed; with one, the packing rule (:func:`packing`) decides what the user
+    left open.
+
+    :param args: the sweep's options (``gpus_per_run`` None: not given; ``envs_per_run``)
+    :param train_args: the flags of each run's ``sgfd-zoo train``
+    :param cores_per_gpu: the CPU cores per GPU of the cluster's GPU nodes (the fewest); None: it has no GPU
+    """
+    rule = None
+    if cores_per_gpu is None and args.gpus_per_run:
+        raise ZooError(f"--gpus-per-run {args.gpus_per_run:g}: the Ray cluster has no GPU")
+    if cores_per_gpu is None or args.gpus_per_run == 0:
+        args.gpus_per_run = 0.0
+        args.cpus_per_run = args.cpus_per_run or 1.0
+        added = ["--num-threads", str(max(math.floor(args.cpus_per_run), 1))]
+    else:
+        rule = packing(cores_per_gpu, args.envs_per_run, args.gpus_per_run)
+        args.gpus_per_run = rule.gpus_per_run
+        args.cpus_per_run = args.cpus_per_run or max(rule.cpus_per_run, 1.0)
+        added = ["--num-threads", str(rule.torch_threads)]
+        if rule.env_processes and not has_flag(train_args, "--vec-env"):
+            added += ["--vec-env", "subproc"]
+    if has_flag(train_args, "--num-threads"):
+        added = added[2:]
+    return [*train_args, *added], rule

@@ -23,7 +23,7 @@ from sgfd_zoo.arguments import TrainingStopped, ZooError
 from sgfd_zoo.config_checks import first_line
 from sgfd_zoo.runs.folders import NoUsableCheckpoint
 from sgfd_zoo.runs.locks import HEARTBEAT_SECONDS, STALE_SECONDS, live_holder
-from sgfd_zoo.sweep.plan import Job
+from sgfd_zoo.sweep.plan import Job, run_resources
 from sgfd_zoo.sweep.progress import LiveView, ProgressBoard, progress_block, returns_text
 
 BOARD_NAME = "sgfd-zoo sweep progress"  # the progress board actor, in this sweep's Ray namespace
@@ -153,6 +153,9 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
 
     start_ray(args)
     try:
+        train_args, packed = run_resources(args, train_args, gpu_node_cores())
+        if packed is not None:
+            print(f"sweep: {packed}")
         board = ray.remote(num_cpus=0)(ProgressBoard).options(name=BOARD_NAME).remote()
         task = ray.remote(
             num_cpus=args.cpus_per_run,
@@ -175,6 +178,15 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
         return failures
     finally:
         ray.shutdown()
+
+
+def gpu_node_cores() -> float | None:
+    """The CPU cores per GPU of the cluster's live GPU nodes (the fewest, where nodes differ); None without a GPU."""
+    import ray
+
+    nodes = [node["Resources"] for node in ray.nodes() if node.get("Alive")]
+    shares = [node.get("CPU", 0.0) / node["GPU"] for node in nodes if node.get("GPU", 0) > 0]
+    return min(shares) if shares else None
 
 
 class Liveness:
@@ -299,7 +311,7 @@ def start_ray(args: argparse.Namespace) -> None:
     cpus, gpus = ray.cluster_resources().get("CPU", 0), ray.cluster_resources().get("GPU", 0)
     if args.ray_logs:
         print(f"sweep: local Ray instance: {cpus:g} CPUs, {gpus:g} GPUs")
-    if args.gpus_per_run > gpus:
+    if args.gpus_per_run and args.gpus_per_run > gpus:
         # Ray would wait forever for a GPU no node of this instance has.
         ray.shutdown()
         raise ZooError(f"--gpus-per-run {args.gpus_per_run:g}: Ray sees {gpus:g} GPUs on this machine")

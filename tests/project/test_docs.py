@@ -1,6 +1,6 @@
 """The documentation's copies of figures stay equal to their sources: the study plots and tables shown on
-docs/reproducing.md are the studies' exported ones, and docs/agents.md's table of the two readings' defaults is
-what SGFDSettings gives."""
+docs/reproducing.md are the studies' exported ones, the cost of the paper's tables there is what `sgfd-zoo study
+--plan` prints, and docs/agents.md's table of the two readings' defaults is what SGFDSettings gives."""
 
 from __future__ import annotations
 
@@ -93,6 +93,21 @@ def test_the_reproducing_pages_final_returns_are_the_strength_studys_results() -
     assert len(table) - 1 == len(exported) - 1  # the export adds a total row
     for task, *cells in table[1:]:
         assert cells == exported[task], (task, cells, exported[task])
+
+
+def test_the_reproducing_pages_table_cost_is_what_the_plan_prints(monkeypatch: pytest.MonkeyPatch) -> None:
+    from sgfd_zoo.study import plan_lines, read_spec
+
+    monkeypatch.chdir(REPO)  # the plan names the spec's folder as the command line gave it
+    text = section((DOCS / "reproducing.md").read_text(), "At paper scale")
+    shown = re.search(r"```text\n(.*?)\n```", text, flags=re.DOTALL)
+    assert shown is not None
+    spec = read_spec(Path("studies/paper-table1/spec.yml"))
+    assert shown.group(1) == "\n".join(plan_lines(spec, Path("studies/paper-table1"), 1, None))
+    # the wall time on 8 GPUs the page quotes
+    (wall,) = [line for line in plan_lines(spec, Path("studies/paper-table1"), 8, None) if line.startswith("wall")]
+    quoted = re.search(r"`--gpus 8` gives the wall\s+time on 8 such GPUs \(([\d.]+) h for the same (\d+) runs\)", text)
+    assert quoted is not None and f"of those {quoted.group(2)} runs" in wall and f": {quoted.group(1)} h" in wall
 
 
 def reading_value(cell: str) -> object:

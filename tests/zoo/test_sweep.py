@@ -317,6 +317,27 @@ def test_sweep_on_an_existing_cluster_skips_finished_runs_and_resumes_a_crashed_
 
 
 @pytest.mark.slow
+def test_a_sweep_on_a_gpu_node_packs_its_runs_by_the_rule(tmp_path: Path) -> None:
+    """A Ray instance that declares one GPU and 4 CPUs stands for a GPU node (Ray schedules by what a node declares;
+    the tiny run itself trains on the CPU here): the rule packs 2 runs on the GPU, each reserving half of it and 2
+    CPUs, with 1 torch thread and its 4 training envs in processes of their own."""
+    ray.init(address="local", num_cpus=4, num_gpus=1, include_dashboard=False, log_to_driver=False)
+    try:
+        argv = ["sweep", "--algos", "sac", "--envs", ENV, "--seeds", "0", "-f", str(tmp_path / "logs")]
+        argv += ["--address", ray.get_runtime_context().gcs_address, "--no-evaluate", *TINY]
+        result = subprocess.run(
+            [sys.executable, "-m", "sgfd_zoo.cli", *argv], capture_output=True, text=True, timeout=600, cwd=tmp_path
+        )
+    finally:
+        ray.shutdown()
+    assert result.returncode == 0, result.stdout + result.stderr
+    packed = "sweep: 2 runs per GPU (--gpus-per-run 0.5); each 2 CPUs, 1 torch thread and 4 env processes"
+    assert packed in result.stdout
+    (run,) = find_runs(tmp_path / "logs")
+    assert (run.args["vec_env"], run.args["num_threads"]) == ("subproc", 1)
+
+
+@pytest.mark.slow
 def test_ctrl_c_stops_each_running_run_at_a_checkpoint_that_the_same_command_resumes(tmp_path: Path) -> None:
     # A long run without periodic checkpoints: whatever checkpoint it has, the Ctrl-C wrote.
     argv = ["sweep", "--algos", "sac", "--envs", ENV, "--seeds", "0", "1", "-f", str(tmp_path / "logs")]
