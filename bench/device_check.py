@@ -289,6 +289,7 @@ def learning_run(algo: str, env_id: str, smoke: bool, window: tuple[float, float
         manager = SGFDExperimentManager(
             Namespace(), algo, env_id, folder, eval_freq=-1, quick=smoke, seed=0, verbose=0, device=device,
             vec_env_type="dummy" if smoke else "subproc", classifier_start=CLASSIFIER_START[smoke],
+            hyperparams={"compile_update": True},
         )  # fmt: skip
         try:
             model, _ = manager.setup_experiment()
@@ -320,6 +321,40 @@ def learning_run(algo: str, env_id: str, smoke: bool, window: tuple[float, float
         f"| {algo} on {env_id}, {kind} | ok | {rate:.1f} updates/s: a 500k-update run in {hours:.2f} h; per update "
         f"(device waited for): {split} |"
     )
+
+
+def append_rates(path: Path, rows: list[str], machine: str) -> None:
+    """The learning runs' updates/s (one run, and several at once) as rows of the zoo's rate table, which
+    ``sgfd-zoo study --plan`` reads (its newest date's rows)."""
+    import csv
+
+    found = []
+    for row in rows:
+        single = re.search(r"\| sgfd_sac on (\S+),.* update (captured|eager).*\| ok \| ([0-9.]+) updates/s", row)
+        if single:
+            found.append((1, float(single[3]), single[2], single[1]))
+        several = re.search(r"\| ([0-9]+) concurrent sgfd_sac runs.*\| ok \| ([0-9.]+) updates/s in all", row)
+        if several:
+            found.append((int(several[1]), float(several[2]), "captured", LEARNING_ENV))
+    with path.open("a", newline="") as handle:
+        writer = csv.writer(handle)
+        for runs, rate, update, env_id in found:
+            note = f"bench/device_check.py: zoo paper settings, 4 subprocess envs each, SGFD's phase, {runs} at once"
+            writer.writerow(
+                [
+                    time.strftime("%Y-%m-%d"),
+                    machine,
+                    os.cpu_count(),
+                    1,
+                    "sgfd_sac",
+                    "pixels",
+                    env_id,
+                    runs,
+                    rate,
+                    update,
+                    note,
+                ]
+            )
 
 
 # The parts in order; each yields its rows as they are measured.
@@ -360,6 +395,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--smoke", action="store_true", help="toy sizes on the CPU, about 3 minutes")
     parser.add_argument("--out", type=Path, help="also write the table to this markdown file, row by row")
+    parser.add_argument(
+        "--rates",
+        type=Path,
+        help="append the learning runs' updates/s to this rate table (sgfd_zoo/sweep/device_rates.csv)",
+    )
     parser.add_argument("--learning-run", metavar="ALGO", help=argparse.SUPPRESS)  # one learning row (a part)
     parser.add_argument("--window", help=argparse.SUPPRESS)  # START:SECONDS, a concurrent run's shared window
     parser.add_argument("--threads", type=int, help=argparse.SUPPRESS)  # torch threads of a learning run
@@ -386,6 +426,8 @@ def main() -> None:
     for part in PARTS:
         for row in part(budgets, args.smoke):
             table.add(row)
+    if args.rates is not None and not args.smoke:
+        append_rates(args.rates, table.rows, gpu)
     if any("| failed |" in row or "| exit" in row for row in table.rows):
         sys.exit(1)
 

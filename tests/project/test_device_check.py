@@ -103,3 +103,23 @@ def test_the_device_checks_smoke_run_fills_its_table(tmp_path):
     assert "updates/s: a 500k-update run in" in rows[3] and "SGFD's phase" in rows[3]
     assert "env step" in rows[3] and "sample and transfer" in rows[3]
     assert "updates/s in all" in rows[4]
+
+
+def test_the_learning_rows_become_rows_of_the_zoos_rate_table(tmp_path):
+    check = device_check()
+    table = tmp_path / "rates.csv"
+    table.write_text((REPO / "sgfd_zoo" / "sweep" / "device_rates.csv").read_text().splitlines()[0] + "\n")
+    rows = [
+        "| sgfd_sac on SGFD/walker-walk-v0, paper scale, cuda, update captured, SGFD's phase | ok | 95.2 updates/s |",
+        "| 8 concurrent sgfd_sac runs, 4 env processes and 1 torch thread each | ok | 310.5 updates/s in all (each |",
+        "| update_overhead mlp | ok | SAC 1.0 ms |",
+    ]
+    check.append_rates(table, rows, "NVIDIA H200")
+    import csv
+
+    written = list(csv.DictReader(table.open()))
+    assert [(r["runs_at_once"], r["updates_per_s"], r["update"]) for r in written] == [
+        ("1", "95.2", "captured"),
+        ("8", "310.5", "captured"),
+    ]
+    assert all(r["machine"] == "NVIDIA H200" and r["algo"] == "sgfd_sac" for r in written)
