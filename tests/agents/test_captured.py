@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch as th
+from stable_baselines3.common.logger import Logger
 from torch.utils._python_dispatch import TorchDispatchMode
 
 from sb3_sgfd.common.captured import WARMUP_CALLS, DeviceFigures, masked_step, prepare_optimizers, set_learning_rate
@@ -135,6 +136,7 @@ def test_save_load_and_set_parameters_keep_the_compiled_update(tmp_path):
     loaded.load_replay_buffer(tmp_path / "buffer")
     assert loaded.compile_update is True and loaded._captures_update()  # saved with the model
     loaded.num_timesteps = model.num_timesteps
+    loaded.set_logger(Logger(None, []))  # train() outside learn() logs somewhere, as SB3's SAC needs
     loaded.train(gradient_steps=5, batch_size=loaded.batch_size)
     assert loaded._n_updates == 15 and all(th.isfinite(p).all() for p in loaded.policy.parameters())
     # new parameters: the runner forgets its graphs, the optimisers are set up again, training goes on from them

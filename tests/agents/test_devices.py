@@ -121,8 +121,10 @@ def test_the_papers_agent_trains_with_every_tensor_on_its_device(device):
     env = VecTransposeImage(
         VecFrameStack(sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", image_size=24, render="fast"), 2)
     )
-    # the weighting starts within the run: its classifier from the first update, a threshold it reaches
-    settings = dict(classifier_start=0, accuracy_threshold=0.5, reweight_iters=3)
+    # the weighting starts within the run: its classifier from the first update, and a threshold just above chance
+    # (4 domains: 0.25): a 16-sample batch scores >= 0.3 (5 right) by chance with p ~ 0.37, so some of the ~48
+    # rounds reach it whatever the device's arithmetic (0.5 is reached on some seeds only: issue 38)
+    settings = dict(classifier_start=0, accuracy_threshold=0.3, reweight_iters=3)
     kwargs = dict(representation_kwargs=dict(hidden_dim=16), device=device, compile_update=True, **TINY)
     model = SGFD_SAC(AMBSPolicy, env, representation="ambs", augmentation_views=2, **settings, **kwargs)
     model.learn(240)

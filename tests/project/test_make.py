@@ -3,6 +3,7 @@ commands, its ci target runs every gate and the tests, and .ci/run runs CI throu
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 from pathlib import Path
@@ -12,7 +13,10 @@ REPO = Path(__file__).resolve().parents[2]
 
 def planned(target: str) -> list[str]:
     """The commands ``make TARGET`` would run (``make -n``), with ``python -m pip`` written as README writes it."""
-    result = subprocess.run(["make", "-n", target], capture_output=True, text=True, cwd=REPO, check=True)
+    # a clean make: under `make ci` this test inherits MAKELEVEL, which would add "Entering directory" lines
+    env = {name: value for name, value in os.environ.items() if name not in ("MAKEFLAGS", "MAKELEVEL", "MFLAGS")}
+    command = ["make", "--no-print-directory", "-n", target]
+    result = subprocess.run(command, capture_output=True, text=True, cwd=REPO, check=True, env=env)
     return [line.strip().replace("python -m pip ", "pip ") for line in result.stdout.splitlines()]
 
 
