@@ -324,7 +324,7 @@ class SkyVideo:
         self._clips = clips
         self.dynamic = dynamic
         self.ground_alpha = ground_alpha
-        self._side = texture_side
+        self.texture_side = texture_side
         self._sky = TextureSlot(physics, "skybox")
         self.textures = FrameTextures(self._sky, texture_side, cache_bytes)
         self._grid = physics.model.name2id("grid", "material")

@@ -49,7 +49,7 @@ def test_frames_sent_once_are_the_frames_sent_at_every_view(tmp_path, texture_ca
             assert len(textures) == len(held)
         renderer = cached.unwrapped.renderer
         assert len(videos) > 1 and first_views < views, "the episodes must change video and see frames again"
-        if texture_cache_mb * 2**20 >= 3 * cube_texture_bytes(sky._side):
+        if texture_cache_mb * 2**20 >= 3 * cube_texture_bytes(sky.texture_side):
             # every frame of a video fits: a frame is sent at its first view and never again
             assert renderer.uploads == first_views
         else:
