@@ -390,26 +390,27 @@ def resident_mb() -> float:
 
 def print_memory() -> None:
     """What one env's sky frames take: DCS hard dynamic walker-walk stepped through an episode (its video's frames
-    all seen), against the same env made with texture_cache_mb=0, measured as the process's resident memory (where
-    llvmpipe keeps textures) and the GPU's used memory."""
-    figures = {}
-    for cache_mb in (0, None):
-        kwargs = {} if cache_mb is None else {"texture_cache_mb": cache_mb}
-        before = resident_mb(), gpu_memory_mb()
-        stepper = gym_stepper("DCS/walker-walk-v0", split="hard", dynamic=True, **kwargs)
-        for _ in range(499):  # the episode's steps after its reset (500 at action repeat 2)
+    all seen) beside the same env made with texture_cache_mb=0, in lockstep on the same seed (the same video and
+    frames), each step's growth of the process's resident memory (where llvmpipe keeps textures) put to the env that
+    stepped; and the GPU's used memory over the episode, where the uncached env holds no more textures at its end."""
+    cached = gym_stepper("DCS/walker-walk-v0", split="hard", dynamic=True)
+    uncached = gym_stepper("DCS/walker-walk-v0", split="hard", dynamic=True, texture_cache_mb=0)
+    grown = {"cached": 0.0, "uncached": 0.0}
+    gpu_before = gpu_memory_mb()
+    for _ in range(499):  # the episode's steps after its reset (500 at action repeat 2)
+        for name, stepper in (("cached", cached), ("uncached", uncached)):
+            before = resident_mb()
             stepper()
-        after = resident_mb(), gpu_memory_mb()
-        frames, estimate = stepper.held_textures()
-        stepper.close()
-        gpu = None if before[1] is None or after[1] is None else after[1] - before[1]
-        figures["cache" if cache_mb is None else "no cache"] = (after[0] - before[0], gpu, frames, estimate)
-    (rss, gpu, frames, estimate), (rss_off, gpu_off, *_) = figures["cache"], figures["no cache"]
-    gpu_text = "no nvidia-smi" if gpu is None or gpu_off is None else f"GPU {gpu - gpu_off:.0f} MB"
+            grown[name] += resident_mb() - before
+    gpu_after = gpu_memory_mb()
+    frames, counted = cached.held_textures()
+    cached.close()
+    uncached.close()
+    gpu = "no nvidia-smi" if gpu_before is None or gpu_after is None else f"GPU {gpu_after - gpu_before:.0f} MB"
     print(
-        f"sky frames of one DCS hard dynamic walker-walk episode: {frames} frames held ({estimate:.0f} MB counted, "
-        f"{estimate / max(frames, 1):.2f} MB each); over the same env without the cache: resident "
-        f"{rss - rss_off:.0f} MB, {gpu_text}"
+        f"sky frames of one DCS hard dynamic walker-walk episode: {frames} held, {counted:.0f} MB counted "
+        f"({counted / max(frames, 1):.2f} MB each); grown over the episode beside the uncached env: resident "
+        f"{grown['cached'] - grown['uncached']:.0f} MB ({grown['cached']:.0f} - {grown['uncached']:.0f}), {gpu}"
     )
 
 
