@@ -3,11 +3,16 @@ with the same render settings (dm_control's defaults: shadows, reflections, 4x m
 one run, and our fast path (``render="fast"``: none of the three) beside them. Each distracted row also runs our
 undistracted split of the same task (its ``train``, same action repeat and render) and prints what the distraction
 costs over it (``ours/undistracted``, time per agent step), with the textures our env sent to the GPU and the
-frames it read back per agent step.
+frames it read back per agent step; the sky video rows also run ours with ``texture_cache_mb=0`` (``uncached``:
+every new sky frame sent to the GPU, as before the sky's frames were held there).
 
 Each row steps the same task at the benchmark's action repeat with random actions. The methods of a row run in
-interleaved rounds, so machine load hits them alike; each figure is the median over rounds. The benchmarks'
-methods are re-implemented from their code's description, on procedural frames of their data's sizes:
+interleaved rounds, so machine load hits them alike; each figure is the mean over all timed steps (their total
+time over their number). A stepper goes on from where its last round stopped, resetting at episode ends. DCS's sky
+(also ``distracting_cs``'s) sends a video frame to the GPU at its first view in the episode's video only, so its
+early steps cost more than its later ones: timed steps covering whole episodes (``--steps 250 --rounds 2``: one
+DCS episode, two ``distracting_cs`` episodes) give the cost per agent step of training. The benchmarks' methods are
+re-implemented from their code's description, on procedural frames of their data's sizes:
 
 - undistracted: a loop of ``dm_env.step`` and ``physics.render(84, 84, camera_id=0)`` (DMC-GB, DMC-GB2, DCS and
   dmc2gym all render so); ours is ``gym.make(id)``.
@@ -30,15 +35,21 @@ floor, sky write and camera pose) are ``bench/benchmark_methods.py``'s, the very
 ``tests/envs/test_benchmarks_pixels.py`` checks that ours and theirs make the same pixels on the same state (all rows
 but the background one); this script measures the cost.
 
-Usage: ``python bench/env_throughput.py [--steps 40] [--rounds 3]``; on a GPU (EGL) a quick look in about a minute:
-``python bench/env_throughput.py --steps 10 --rounds 2 --warmup 3``.
+``--every-split`` adds a table of every distracted split of walker-walk in DCS, DMC-GB and DMC-GB2 against the
+undistracted split of its family (ours only, interleaved), ``--memory`` what the sky's frames held on the GPU take
+(the process's resident memory, where llvmpipe keeps textures, and the GPU's used memory where nvidia-smi is).
+
+Usage: ``python bench/env_throughput.py [--steps 40] [--rounds 3]``; on a GPU (EGL), whole episodes of every row and
+split in a few minutes: ``python bench/env_throughput.py --steps 250 --rounds 2 --warmup 3 --every-split --memory``;
+the cost of the sky videos alone: ``--only DCS distracting_cs --methods ours undistracted``.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import statistics
+import shutil
+import subprocess
 import time
 from collections.abc import Callable
 from typing import cast
@@ -53,11 +64,14 @@ from PIL import Image
 from sgfd_envs import domains
 from sgfd_envs.backgrounds import ProceduralBackground, make_background
 from sgfd_envs.benchmarks import dcs, dmcgb, dmcgb2
+from sgfd_envs.benchmarks.scene import cube_texture_bytes
 from sgfd_envs.dmc import DMCEnv
 from sgfd_envs.registry import task_entry
 
 IMAGE_SIZE = 84
 Stepper = Callable[[], np.ndarray]
+# Each row's methods; "uncached" (the sky rows): ours with texture_cache_mb=0, every new sky frame sent to the GPU.
+METHODS = ("ours", "theirs", "fast", "undistracted", "uncached")
 
 
 class GymStepper:
@@ -87,6 +101,17 @@ class GymStepper:
         """Textures sent and frames read back per agent step so far."""
         (uploads, readbacks), (start_uploads, start_readbacks) = self._transferred(), self._start
         return (uploads - start_uploads) / max(self.steps, 1), (readbacks - start_readbacks) / max(self.steps, 1)
+
+    def held_textures(self) -> tuple[int, float]:
+        """Video frames the env holds on the GPU now, and their MB (as :func:`cube_texture_bytes` counts them)."""
+        distraction = cast(DMCEnv, self.env.unwrapped).distraction
+        sky = getattr(distraction, "background", None)
+        if not isinstance(sky, dcs.SkyVideo):
+            return 0, 0.0
+        return len(sky.textures), len(sky.textures) * cube_texture_bytes(sky.texture_side) / 1e6
+
+    def close(self) -> None:
+        self.env.close()
 
 
 def gym_stepper(env_id: str, seed: int = 0, **kwargs) -> GymStepper:
@@ -251,15 +276,15 @@ def steps_per_second(step: Stepper, n_steps: int) -> float:
 
 
 def measure(methods: dict[str, Stepper], steps: int, rounds: int, warmup: int) -> dict[str, float]:
-    """Median steps/s of each method over interleaved rounds."""
+    """Steps/s of each method over interleaved rounds: all its timed steps over their total time."""
     for step in methods.values():
         for _ in range(warmup):
             step()
-    rates: dict[str, list[float]] = {name: [] for name in methods}
+    seconds = dict.fromkeys(methods, 0.0)
     for _ in range(rounds):
         for name, step in methods.items():
-            rates[name].append(steps_per_second(step, steps))
-    return {name: statistics.median(values) for name, values in rates.items()}
+            seconds[name] += steps / steps_per_second(step, steps)
+    return {name: rounds * steps / total for name, total in seconds.items()}
 
 
 def rows() -> dict[str, dict[str, Callable[[], Stepper]]]:
@@ -296,14 +321,102 @@ def rows() -> dict[str, dict[str, Callable[[], Stepper]]]:
             "theirs": lambda: dcs_stepper("walker", "walk", 2, 0.3, every=1, renders_each_step=False),
             "fast": lambda: gym_stepper("DCS/walker-walk-v0", split="hard", dynamic=True, render="fast"),
             "undistracted": lambda: gym_stepper("DCS/walker-walk-v0"),
+            "uncached": lambda: gym_stepper("DCS/walker-walk-v0", split="hard", dynamic=True, texture_cache_mb=0),
         },
         "DMC-GB walker-walk distracting_cs 0.5": {
             "ours": lambda: gym_stepper("DMCGB/walker-walk-v0", split="distracting_cs", intensity=0.5),
             "theirs": lambda: dcs_stepper("walker", "walk", 4, 0.5, every=2, renders_each_step=True),
             "fast": lambda: gym_stepper("DMCGB/walker-walk-v0", split="distracting_cs", intensity=0.5, render="fast"),
             "undistracted": lambda: gym_stepper("DMCGB/walker-walk-v0"),
+            "uncached": lambda: gym_stepper(
+                "DMCGB/walker-walk-v0", split="distracting_cs", intensity=0.5, texture_cache_mb=0
+            ),
         },
     }
+
+
+def every_split() -> dict[str, tuple[str, dict[str, dict]]]:
+    """Per family: the walker-walk id and the kwargs of each distracted split (its undistracted split is ``train``)."""
+    dcs_splits = {
+        f"{split}{', dynamic' if dynamic else ''}": {"split": split, "dynamic": dynamic}
+        for split in dcs.DIFFICULTIES
+        for dynamic in (False, True)
+    }
+    distracting_cs = {f"distracting_cs {i}": {"split": "distracting_cs", "intensity": i} for i in dmcgb.INTENSITIES}
+    return {
+        "DCS": ("DCS/walker-walk-v0", dcs_splits),
+        "DMC-GB": ("DMCGB/walker-walk-v0", {**{m: {"split": m} for m in dmcgb.MODES[1:]}, **distracting_cs}),
+        "DMC-GB2": ("DMCGB2/walker-walk-v0", {**{m: {"split": m} for m in dmcgb2.MODES[1:]}, **distracting_cs}),
+    }
+
+
+def print_every_split(steps: int, rounds: int, warmup: int, only: list[str] | None) -> None:
+    """Each distracted split against its family's undistracted walker-walk, in interleaved rounds (one distracted env
+    at a time), with our transfers per agent step and the video frames held on the GPU at the end."""
+    print("every distracted split of walker-walk, ours against the family's undistracted split (train)")
+    for family, (env_id, splits) in every_split().items():
+        chosen = {k: v for k, v in splits.items() if not only or any(word in f"{family} {k}" for word in only)}
+        if not chosen:
+            continue
+        undistracted = gym_stepper(env_id)
+        for label, kwargs in chosen.items():
+            ours = gym_stepper(env_id, **kwargs)
+            rates = measure({"ours": ours, "undistracted": undistracted}, steps, rounds, warmup)
+            uploads, readbacks = ours.transfers()
+            frames, megabytes = ours.held_textures()
+            cost = rates["undistracted"] / rates["ours"]
+            print(
+                f"  {family + ' ' + label:<36} ours {1000 / rates['ours']:6.1f} ms   undistracted "
+                f"{1000 / rates['undistracted']:6.1f} ms   ours/undistracted {cost:5.2f}x   uploads {uploads:.2f} "
+                f"readbacks {readbacks:.2f} per step   sky frames held {frames} ({megabytes:.0f} MB)"
+            )
+            ours.close()
+        undistracted.close()
+
+
+def gpu_memory_mb() -> float | None:
+    """The GPU's used memory in MB (nvidia-smi's first GPU), None without nvidia-smi."""
+    if shutil.which("nvidia-smi") is None:
+        return None
+    query = ["nvidia-smi", "--query-gpu=memory.used", "--format=csv,noheader,nounits", "--id=0"]
+    return float(subprocess.run(query, capture_output=True, text=True, check=True).stdout.split()[0]) * 2**20 / 1e6
+
+
+def resident_mb() -> float:
+    """This process's resident memory in MB (Linux)."""
+    with open("/proc/self/statm") as statm:
+        return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+def print_memory() -> None:
+    """What one env's sky frames take: DCS hard dynamic walker-walk stepped through an episode (its video's frames
+    all seen) beside the same env made with texture_cache_mb=0, in lockstep on the same seed (the same video and
+    frames), each step's growth of the process's resident memory (where llvmpipe keeps textures) put to the env that
+    stepped; and the GPU's used memory over the episode, where the uncached env holds no more textures at its end."""
+    cached = gym_stepper("DCS/walker-walk-v0", split="hard", dynamic=True)
+    uncached = gym_stepper("DCS/walker-walk-v0", split="hard", dynamic=True, texture_cache_mb=0)
+    grown = {"cached": 0.0, "uncached": 0.0}
+    gpu_before = gpu_memory_mb()
+    for _ in range(499):  # the episode's steps after its reset (500 at action repeat 2)
+        for name, stepper in (("cached", cached), ("uncached", uncached)):
+            before = resident_mb()
+            stepper()
+            grown[name] += resident_mb() - before
+    gpu_after = gpu_memory_mb()
+    frames, counted = cached.held_textures()
+    cached.close()
+    uncached.close()
+    gpu = "no nvidia-smi" if gpu_before is None or gpu_after is None else f"GPU {gpu_after - gpu_before:.0f} MB"
+    print(
+        f"sky frames of one DCS hard dynamic walker-walk episode: {frames} held, {counted:.0f} MB counted "
+        f"({counted / max(frames, 1):.2f} MB each); grown over the episode beside the uncached env: resident "
+        f"{grown['cached'] - grown['uncached']:.0f} MB ({grown['cached']:.0f} - {grown['uncached']:.0f}), {gpu}"
+    )
+
+
+def ratio(rates: dict[str, float], faster: str, slower: str) -> str:
+    """``faster``'s steps/s over ``slower``'s, or a dash where one did not run."""
+    return f"{rates[faster] / rates[slower]:5.2f}x" if faster in rates and slower in rates else "    -"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -313,29 +426,42 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=40, help="agent steps per method per round")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--warmup", type=int, default=5, help="untimed agent steps of each method first")
-    parser.add_argument("--only", nargs="+", help="rows whose name contains one of these words")
+    parser.add_argument("--only", nargs="+", help="rows (and --every-split's splits) whose name has one of these words")
+    parser.add_argument(
+        "--methods", nargs="+", choices=METHODS, default=list(METHODS), help="the methods of each row to run"
+    )
+    parser.add_argument("--every-split", action="store_true", help="also every distracted split of walker-walk")
+    parser.add_argument("--memory", action="store_true", help="also the memory of one env's sky frames")
     args = parser.parse_args(argv)
     print(
         f"MUJOCO_GL={os.environ.get('MUJOCO_GL')}, {os.cpu_count()} CPUs, {IMAGE_SIZE}x{IMAGE_SIZE}, "
-        f"{args.steps} agent steps x {args.rounds} interleaved rounds, median steps/s (ms per agent step)"
+        f"{args.steps} agent steps x {args.rounds} interleaved rounds, steps/s over the timed steps (ms per agent step)"
     )
     torch.set_num_threads(1)
     for name, factories in rows().items():
         if args.only and not any(word in name for word in args.only):
             continue
-        steppers = {k: make() for k, make in factories.items()}
-        medians = measure(steppers, args.steps, args.rounds, args.warmup)
-        cells = "   ".join(f"{k} {v:7.1f} ({1000 / v:6.1f} ms)" for k, v in medians.items())
-        ratio = medians["ours"] / medians["theirs"]
-        fast = medians["fast"] / medians["theirs"]
-        ours = steppers["ours"]
-        assert isinstance(ours, GymStepper)
-        uploads, readbacks = ours.transfers()
-        cost = f"{medians['undistracted'] / medians['ours']:5.2f}x" if "undistracted" in medians else "    -"
+        steppers = {k: make() for k, make in factories.items() if k in args.methods}
+        rates = measure(steppers, args.steps, args.rounds, args.warmup)
+        cells = "   ".join(f"{k} {v:7.1f} ({1000 / v:6.1f} ms)" for k, v in rates.items())
+        transfers = ""
+        if "ours" in rates:
+            stepper = steppers["ours"]
+            assert isinstance(stepper, GymStepper)
+            uploads, readbacks = stepper.transfers()
+            transfers = f"   uploads {uploads:.2f} readbacks {readbacks:.2f} per step"
         print(
-            f"  {name:<56} {cells}   ours/theirs {ratio:5.2f}x   fast/theirs {fast:5.2f}x   ours/undistracted {cost}"
-            f"   uploads {uploads:.2f} readbacks {readbacks:.2f} per step"
+            f"  {name:<56} {cells}   ours/theirs {ratio(rates, 'ours', 'theirs')}   fast/theirs "
+            f"{ratio(rates, 'fast', 'theirs')}   ours/undistracted {ratio(rates, 'undistracted', 'ours')}{transfers}"
+            + (f"   uncached/undistracted {ratio(rates, 'undistracted', 'uncached')}" if "uncached" in rates else "")
         )
+        for stepper in steppers.values():
+            if isinstance(stepper, GymStepper):
+                stepper.close()
+    if args.every_split:
+        print_every_split(args.steps, args.rounds, args.warmup, args.only)
+    if args.memory:
+        print_memory()
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ from sgfd_envs import domains
 from sgfd_envs.backgrounds import DEFAULT_FRAME_BUDGET, check_background_split, make_background, n_background_domains
 from sgfd_envs.benchmarks import dcs, dmcgb, dmcgb2
 from sgfd_envs.benchmarks.media import check_data_dir, davis_folder
+from sgfd_envs.benchmarks.scene import DEFAULT_TEXTURE_CACHE_MB, check_texture_cache_mb
 from sgfd_envs.causal_world import CausalWorldEnv
 from sgfd_envs.dmc import Distraction, DMCEnv, DomainLabel, check_image_size
 from sgfd_envs.morphology import SETTINGS, check_domain, select_setting
@@ -217,8 +218,9 @@ def _benchmark_env(
     )
 
 
-def _check_common(env_id: str, split: str, image_size: int, render: str) -> None:
+def _check_common(env_id: str, split: str, image_size: int, render: str, texture_cache_mb: int) -> None:
     check_image_size(image_size)
+    check_texture_cache_mb(texture_cache_mb)
     check_benchmark_split(env_id, split)
     check_render(render)
 
@@ -270,6 +272,7 @@ def make_dmcgb_env(
     image_size: int = 84,
     render_mode: str | None = None,
     render: str = "benchmark",
+    texture_cache_mb: int = DEFAULT_TEXTURE_CACHE_MB,
 ) -> DMCEnv:
     """A DMC-GB env (entry point of the ``DMCGB/`` ids; see :mod:`sgfd_envs.benchmarks.dmcgb`).
 
@@ -284,12 +287,15 @@ def make_dmcgb_env(
     :param image_size: height and width of the pixel observation
     :param render_mode: None or ``"rgb_array"``
     :param render: ``"benchmark"`` (dm_control's render: shadows, reflections, multisampling) or ``"fast"``
+    :param texture_cache_mb: ``distracting_cs``: GPU memory (MiB) the sky's frames of the episode's video may take,
+        each sent to the GPU once (past it, a frame is sent at each view; 0: no cache)
     """
     entry = entry_of_kind(env_id, DMCGB)
-    _check_common(env_id, split, image_size, render)
+    _check_common(env_id, split, image_size, render, texture_cache_mb)
     make_distraction = _dmcgb_family_distraction(
         entry.robot, split, intensity, data_dir, background_dir, image_size, render,
         lambda physics: dmcgb.DMCGBDistraction(physics, split, image_size, data_dir),
+        texture_cache_mb=texture_cache_mb,
     )  # fmt: skip
     common = {"obs_type": obs_type, "image_size": image_size, "render_mode": render_mode, "render": render}
     return _benchmark_env(
@@ -310,6 +316,7 @@ def make_dmcgb2_env(
     image_size: int = 84,
     render_mode: str | None = None,
     render: str = "benchmark",
+    texture_cache_mb: int = DEFAULT_TEXTURE_CACHE_MB,
 ) -> DMCEnv:
     """A DMC-GB2 env (entry point of the ``DMCGB2/`` ids; see :mod:`sgfd_envs.benchmarks.dmcgb2`).
 
@@ -325,13 +332,15 @@ def make_dmcgb2_env(
     :param image_size: height and width of the pixel observation
     :param render_mode: None or ``"rgb_array"``
     :param render: ``"benchmark"`` (dm_control's render: shadows, reflections, multisampling) or ``"fast"``
+    :param texture_cache_mb: ``distracting_cs``: GPU memory (MiB) the sky's frames of the episode's video may take,
+        each sent to the GPU once (past it, a frame is sent at each view; 0: no cache)
     """
     entry = entry_of_kind(env_id, DMCGB2)
-    _check_common(env_id, split, image_size, render)
+    _check_common(env_id, split, image_size, render, texture_cache_mb)
     make_distraction = _dmcgb_family_distraction(
         entry.robot, split, intensity, data_dir, background_dir, image_size, render,
         lambda physics: dmcgb2.DMCGB2Distraction(physics, entry.robot, split, image_size, data_dir, render),
-        interpolation=dmcgb2.RESIZE,
+        interpolation=dmcgb2.RESIZE, texture_cache_mb=texture_cache_mb,
     )  # fmt: skip
     dm_env = None
     if "video" in split:
@@ -358,6 +367,7 @@ def make_dcs_env(
     image_size: int = 84,
     render_mode: str | None = None,
     render: str = "benchmark",
+    texture_cache_mb: int = DEFAULT_TEXTURE_CACHE_MB,
 ) -> DMCEnv:
     """A Distracting Control Suite env (entry point of the ``DCS/`` ids; see :mod:`sgfd_envs.benchmarks.dcs`).
 
@@ -373,6 +383,8 @@ def make_dcs_env(
     :param image_size: height and width of the pixel observation
     :param render_mode: None or ``"rgb_array"``
     :param render: ``"benchmark"`` (dm_control's render: shadows, reflections, multisampling) or ``"fast"``
+    :param texture_cache_mb: GPU memory (MiB) the sky's frames of the episode's video may take, each sent to the GPU
+        once (past it, a frame is sent at each view; 0: no cache)
     """
     entry = entry_of_kind(env_id, DCS)
     # Checked on every split, train too, so a bad value fails where it is given.
@@ -381,7 +393,7 @@ def make_dcs_env(
         raise ValueError(f"dynamic must be True or False, got {dynamic!r}")
     if background_videos not in dcs.VIDEO_SPLITS:
         raise ValueError(f"background_videos must be one of {dcs.VIDEO_SPLITS}, got {background_videos!r}")
-    _check_common(env_id, split, image_size, render)
+    _check_common(env_id, split, image_size, render, texture_cache_mb)
     if background_dir is not None:
         davis_folder(background_dir)
 
@@ -389,7 +401,7 @@ def make_dcs_env(
         scale, n_videos = dcs.DIFFICULTIES[split]
         return dcs.DCSDistraction(
             physics, entry.robot, scale, n_videos, dynamic, distractions, background_videos, image_size,
-            background_dir, render=render,
+            background_dir, render=render, texture_cache_mb=texture_cache_mb,
         )  # fmt: skip
 
     common = {"obs_type": obs_type, "image_size": image_size, "render_mode": render_mode, "render": render}

@@ -93,12 +93,53 @@ class CameraRenderer(engine.Camera):
         self.uploads = 0
         self.readbacks = 0
 
-    def upload_texture(self, texture_id: int) -> None:
-        """Send texture ``texture_id`` of the model (after its ``tex_data`` or size changed) to the GPU."""
+    def upload_texture(self, texture_id: int, name: int | None = None) -> None:
+        """Send texture ``texture_id`` of the model (after its ``tex_data`` or size changed) to the GPU: into the
+        model texture's own OpenGL texture, or into ``name`` (one of :meth:`make_textures`), as MuJoCo sends it
+        (the same format, sampling and mip levels), leaving the model texture's own untouched.
+
+        :param texture_id: the model's texture
+        :param name: an OpenGL texture name of this camera's context, or None for the model texture's own
+        """
         contexts = self._physics.contexts
+        context = contexts.mujoco.ptr
+        own = context.texture[texture_id]
         with contexts.gl.make_current() as ctx:
-            ctx.call(mujoco.mjr_uploadTexture, self._physics.model.ptr, contexts.mujoco.ptr, texture_id)
+            # mjr_uploadTexture fills the OpenGL texture the context names for the model's texture.
+            if name is not None:
+                context.texture[texture_id] = name
+            try:
+                ctx.call(mujoco.mjr_uploadTexture, self._physics.model.ptr, context, texture_id)
+            finally:
+                context.texture[texture_id] = own
         self.uploads += 1
+
+    def make_textures(self, count: int) -> list[int]:
+        """``count`` new OpenGL texture names in this camera's context, for :meth:`upload_texture` to fill and
+        :meth:`texture_override` to draw. They live until :meth:`delete_textures` or the end of the context
+        (``physics.free()``).
+        """
+        # Imported here, once dm_control has chosen the OpenGL platform of MUJOCO_GL (PyOpenGL binds it at import).
+        from OpenGL import GL
+
+        with self._physics.contexts.gl.make_current() as ctx:
+            names = ctx.call(GL.glGenTextures, count)
+        return [int(name) for name in np.atleast_1d(names)]
+
+    def delete_textures(self, names: Sequence[int]) -> None:
+        """Free OpenGL textures of :meth:`make_textures` (their GPU memory)."""
+        from OpenGL import GL
+
+        if len(names):
+            with self._physics.contexts.gl.make_current() as ctx:
+                ctx.call(GL.glDeleteTextures, np.asarray(names, dtype=np.uint32))
+
+    def texture_override(self, texture_id: int, name: int) -> tuple[np.ndarray, int, np.uint32]:
+        """A :meth:`render` override that draws the model's texture ``texture_id`` from the OpenGL texture ``name``
+        (one of :meth:`make_textures`, filled by :meth:`upload_texture`) for one render: switching textures by name
+        sends nothing to the GPU. The context names its own texture again after the render, so it frees its own.
+        """
+        return (self._physics.contexts.mujoco.ptr.texture, texture_id, np.uint32(name))
 
     def _draw(self, overrides: Sequence[tuple[np.ndarray, int, np.ndarray]]) -> np.ndarray:
         """dm_control's render of the current state with ``overrides`` set during it: a view of the reused buffer,
@@ -125,8 +166,9 @@ class CameraRenderer(engine.Camera):
         """Render the current state.
 
         :param overrides: ``(array, row, value)`` triples of ``physics.data`` arrays (a camera's
-            ``cam_xpos``/``cam_xmat``, a site's ``site_xpos``) set for this render only and restored after it,
-            so a moved camera changes the view and never the simulation
+            ``cam_xpos``/``cam_xmat``, a site's ``site_xpos``) or of the context's texture names
+            (:meth:`texture_override`) set for this render only and restored after it, so a moved camera changes
+            the view and never the simulation
         :return: a new uint8 (H, W, 3) RGB image, top row first
         """
         return self._draw(overrides)[..., :3].copy()

@@ -19,10 +19,13 @@ Facts taken from its code (``suite_utils.py``, ``background.py``, ``camera.py``,
 
 The distractions draw from generators seeded with the env's seed (DCS leaves them unseeded). Each DAVIS frame is
 resized whole to DCS's 800 x 800 sky texture (bilinear, as DCS's ``tf.image.resize``), then averaged down to the
-finest mip level the observation reads (400 x 400 at 84 px: :func:`sky_texture`), and sent to the GPU once per
-rendered frame that changed (DCS: every simulator step); frames are taken in file-name order. The walks move at
-every simulator step and touch the model only for a render (colours, camera pose, sky). With ``render="fast"``
-the resize is to ``min(800, 2 * image_size)`` by area.
+finest mip level the observation reads (400 x 400 at 84 px: :func:`sky_texture`); frames are taken in file-name
+order. Each frame is sent to the GPU at its first view in the episode's video, into a texture of its own, and drawn
+at later views by switching the sky's texture by name (DCS sends the sky at every simulator step); the video's
+frames stay on the GPU until the next video's first frame, up to ``texture_cache_mb``
+(:class:`~sgfd_envs.benchmarks.scene.FrameTextures`). The walks move at every simulator step and touch the model
+only for a render (colours, camera pose, sky). With ``render="fast"`` the resize is to ``min(800, 2 * image_size)``
+by area.
 
 DMC-GB's ``distracting_cs`` mode (and DMC-GB2's DCS test) is this suite at another scale with other video counts,
 always dynamic, its walks moved every second simulator step (:data:`sgfd_envs.benchmarks.dmcgb.DISTRACTING_CS_VIDEOS`);
@@ -44,7 +47,14 @@ from dm_control.utils import transformations
 
 from sgfd_envs.benchmarks import facts
 from sgfd_envs.benchmarks.media import ClipBank, davis_clips
-from sgfd_envs.benchmarks.scene import TextureSlot, VideoTexture, video_texture
+from sgfd_envs.benchmarks.scene import (
+    DEFAULT_TEXTURE_CACHE_MB,
+    FrameTextures,
+    TextureSlot,
+    VideoTexture,
+    check_texture_cache_mb,
+    video_texture,
+)
 from sgfd_envs.rendering import CameraRenderer
 
 # The facts the id table reads (benchmarks/facts.py, import-light), under this module's names.
@@ -297,23 +307,31 @@ class SkyVideo:
     :param dynamic: whether the frame moves during the episode
     :param ground_alpha: the floor's alpha
     :param texture_side: side of the square sky texture
+    :param cache_bytes: GPU memory the episode's video frames may take, each sent once
+        (:class:`~sgfd_envs.benchmarks.scene.FrameTextures`)
     """
 
     def __init__(
-        self, physics: Physics, clips: ClipBank, dynamic: bool, ground_alpha: float, texture_side: int
+        self,
+        physics: Physics,
+        clips: ClipBank,
+        dynamic: bool,
+        ground_alpha: float,
+        texture_side: int,
+        cache_bytes: int = DEFAULT_TEXTURE_CACHE_MB << 20,
     ) -> None:
         self._physics = physics
         self._clips = clips
         self.dynamic = dynamic
         self.ground_alpha = ground_alpha
-        self._side = texture_side
+        self.texture_side = texture_side
         self._sky = TextureSlot(physics, "skybox")
+        self.textures = FrameTextures(self._sky, texture_side, cache_bytes)
         self._grid = physics.model.name2id("grid", "material")
         self.video_index = 0
         self.frames: list[int] = [0]
         self.position = 0
         self.direction = 1
-        self._shown: tuple[int, int] | None = None
 
     def start(self, rng: np.random.Generator) -> None:
         self._physics.model.mat_rgba[self._grid, 3] = self.ground_alpha
@@ -322,7 +340,6 @@ class SkyVideo:
         self.frames = list(range(n_frames)) if self.dynamic else [int(rng.integers(n_frames))]
         self.position = int(rng.integers(len(self.frames)))
         self.direction = int(rng.choice([-1, 1]))
-        self._shown = None
 
     def advance(self) -> None:
         if not self.dynamic:
@@ -346,20 +363,16 @@ class SkyVideo:
         self._physics.model.mat_rgba[self._grid, 3] = self.ground_alpha
         self.video_index, self.frames = state["video_index"], list(state["frames"])
         self.position, self.direction = state["position"], state["direction"]
-        self._shown = None  # the sky texture is written again at the next render
 
     @property
     def frame_index(self) -> int:
         """The index, in its video, of the frame the sky shows."""
         return self.frames[self.position]
 
-    def upload(self, renderer: CameraRenderer) -> None:
-        shown = (self.video_index, self.frame_index)
-        if shown != self._shown:
-            image = self._clips.clip(self.video_index).frame(self.frame_index)
-            self._sky.write(image, (self._side, self._side))
-            self._shown = shown
-        self._sky.upload_if_changed(renderer)
+    def overrides(self, renderer: CameraRenderer) -> list:
+        """Renderer overrides that show the sky's frame, sent to the GPU at its first view in the video."""
+        clip, index = self._clips.clip(self.video_index), self.frame_index
+        return self.textures.overrides(renderer, self.video_index, index, lambda: clip.frame(index))
 
 
 class DCSDistraction:
@@ -380,6 +393,9 @@ class DCSDistraction:
     :param render: ``"benchmark"`` (frames resized to DCS's 800 x 800 with ``interpolation``) or ``"fast"`` (see
         :func:`sky_texture`)
     :param interpolation: OpenCV interpolation closest to the benchmark's resize of a DAVIS frame
+    :param texture_cache_mb: GPU memory (MiB) the sky's frames of the episode's video may take, each sent to the
+        GPU once; frames past it are sent at every view (0: every new frame is sent; see
+        :class:`~sgfd_envs.benchmarks.scene.FrameTextures`)
     """
 
     def __init__(
@@ -398,12 +414,14 @@ class DCSDistraction:
         update_every: int = 1,
         render: str = "benchmark",
         interpolation: int = RESIZE,
+        texture_cache_mb: int = DEFAULT_TEXTURE_CACHE_MB,
     ) -> None:
         if background_videos not in VIDEO_SPLITS:
             raise ValueError(f"background_videos must be one of {VIDEO_SPLITS}, got {background_videos!r}")
         if not isinstance(dynamic, bool):
             raise ValueError(f"dynamic must be True or False, got {dynamic!r}")
         distractions = check_distractions(distractions)
+        check_texture_cache_mb(texture_cache_mb)
         self.scale = scale
         self.update_every = update_every
         self.background: SkyVideo | None = None
@@ -417,7 +435,7 @@ class DCSDistraction:
                 texture.halvings,
             )  # fmt: skip
             alpha = GROUND_ALPHA.get(domain, DEFAULT_GROUND_ALPHA)
-            self.background = SkyVideo(physics, clips, dynamic, alpha, texture.side)
+            self.background = SkyVideo(physics, clips, dynamic, alpha, texture.side, texture_cache_mb << 20)
         if "camera" in distractions:
             self.camera = CameraWalk(physics, camera_id, scale, dynamic, upper_quadrant=domain != "reacher")
         if "colour" in distractions:
@@ -469,9 +487,9 @@ class DCSDistraction:
         return {"background": self.background, "camera": self.camera, "colour": self.colour}
 
     def render(self, renderer: CameraRenderer, agent_step: int) -> np.ndarray:
-        if self.background is not None:
-            self.background.upload(renderer)
+        overrides = self.background.overrides(renderer) if self.background is not None else []
         if self.colour is not None:
             self.colour.show()
-        overrides = self.camera.overrides() if self.camera is not None else []
+        if self.camera is not None:
+            overrides += self.camera.overrides()
         return renderer.render(overrides)

@@ -38,7 +38,7 @@ from dm_control.mujoco import Physics
 from sgfd_envs.benchmarks import facts
 from sgfd_envs.benchmarks.dcs import DISTRACTIONS, DCSDistraction
 from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
-from sgfd_envs.benchmarks.scene import TextureSlot, rgb_attribute, suite_texture_data
+from sgfd_envs.benchmarks.scene import DEFAULT_TEXTURE_CACHE_MB, TextureSlot, rgb_attribute, suite_texture_data
 from sgfd_envs.rendering import CameraRenderer
 
 # The facts the id table reads (benchmarks/facts.py, import-light), under this module's names.
@@ -139,6 +139,7 @@ def distracting_cs(
     background_dir: str | Path | None,
     render: str = "benchmark",
     interpolation: int = cv2.INTER_NEAREST_EXACT,
+    texture_cache_mb: int = DEFAULT_TEXTURE_CACHE_MB,
 ) -> DCSDistraction:
     """DMC-GB's ``distracting_cs`` at one intensity (see the module docstring).
 
@@ -150,10 +151,13 @@ def distracting_cs(
     :param render: ``"benchmark"`` or ``"fast"`` (see :class:`~sgfd_envs.benchmarks.dcs.DCSDistraction`)
     :param interpolation: OpenCV's closest to the benchmark's resize of a DAVIS frame (DMC-GB's Pillow 6.2:
         nearest, as ``INTER_NEAREST_EXACT``)
+    :param texture_cache_mb: GPU memory (MiB) the sky's frames of the episode's video may take (see
+        :class:`~sgfd_envs.benchmarks.dcs.DCSDistraction`)
     """
     return DCSDistraction(
         physics, domain, intensity, DISTRACTING_CS_VIDEOS[intensity], True, DISTRACTIONS, "train", image_size,
         background_dir, update_every=DISTRACTING_CS_UPDATE_EVERY, render=render, interpolation=interpolation,
+        texture_cache_mb=texture_cache_mb,
     )  # fmt: skip
 
 

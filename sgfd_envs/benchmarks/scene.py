@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import functools
 import xml.etree.ElementTree as ET
-from collections.abc import Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -132,13 +132,16 @@ class TextureSlot:
         self.original_shape = (height, width)
         self._capacity = height * width * int(self._model.tex_nchannel[self.texture_id])
         self._stale = False
+        # What the bytes show, as the last write named it (None: unnamed, or the model's own).
+        self.holds: Hashable | None = None
 
-    def write(self, data: np.ndarray, shape: tuple[int, int] | None = None) -> None:
+    def write(self, data: np.ndarray, shape: tuple[int, int] | None = None, holds: Hashable | None = None) -> None:
         """Replace the texture's bytes (and, for a cube texture, its size: a square ``shape`` makes MuJoCo
         draw the same image on all six faces).
 
         :param data: uint8 bytes, height x width x 3 of ``shape``
         :param shape: (height, width); default the texture's own
+        :param holds: a name for what the bytes show (e.g. a clip's frame), kept as :attr:`holds`
         """
         height, width = shape or self.original_shape
         flat = np.asarray(data, dtype=np.uint8).reshape(-1)
@@ -150,12 +153,92 @@ class TextureSlot:
         self._model.tex_width[self.texture_id] = width
         self._model.tex_data[self._address : self._address + flat.size] = flat
         self._stale = True
+        self.holds = holds
 
     def upload_if_changed(self, renderer: CameraRenderer) -> None:
         """Send the texture to the GPU if it changed since the last upload."""
         if self._stale:
             renderer.upload_texture(self.texture_id)
             self._stale = False
+
+
+# GPU memory the frames of one clip may take per env by default, in MiB: every frame of the longest DAVIS clip (104)
+# as DCS's 400 px sky of an 84 px frame (5.1 MB each, :func:`cube_texture_bytes`) fits.
+DEFAULT_TEXTURE_CACHE_MB = 512
+
+
+def check_texture_cache_mb(texture_cache_mb: int) -> int:
+    """``texture_cache_mb`` if it is a non-negative int, else a ValueError naming it."""
+    if isinstance(texture_cache_mb, bool) or not isinstance(texture_cache_mb, int) or texture_cache_mb < 0:
+        raise ValueError(f"texture_cache_mb must be a non-negative int (MiB; 0: no cache), got {texture_cache_mb!r}")
+    return texture_cache_mb
+
+
+def cube_texture_bytes(side: int) -> int:
+    """GPU memory of a cube texture of square ``side`` as MuJoCo sends it: six faces of side x side texels, 4 bytes
+    each (OpenGL drivers keep RGB texels as RGBA), and its mip levels (a third more)."""
+    return 6 * side * side * 4 * 4 // 3
+
+
+class FrameTextures:
+    """The frames of a clip shown on a model's cube texture (DCS's sky), each sent to the GPU once, into an OpenGL
+    texture of its own, at its first view, and drawn at every later view by naming that texture in the rendering
+    context for the render (which sends nothing). The frames' pixels are the upload path's: MuJoCo's own upload
+    fills each texture.
+
+    It holds one clip's frames at a time (those of the previous clip are freed at the next clip's first view), up
+    to ``max_bytes`` of GPU memory (:func:`cube_texture_bytes` per frame). A frame past that is written into the
+    model's texture and sent at each view, as without the cache.
+
+    :param slot: the model texture the frames are shown on
+    :param side: the frames' square side
+    :param max_bytes: GPU memory the cached frames may take (0: none, every view of a new frame sends it)
+    """
+
+    def __init__(self, slot: TextureSlot, side: int, max_bytes: int) -> None:
+        self._slot = slot
+        self._side = side
+        self.capacity = max_bytes // cube_texture_bytes(side)
+        self._clip: Hashable | None = None
+        self._renderer: CameraRenderer | None = None
+        self._names: dict[Hashable, int] = {}
+
+    def __len__(self) -> int:
+        """Frames held on the GPU."""
+        return len(self._names)
+
+    def overrides(
+        self, renderer: CameraRenderer, clip: Hashable, index: Hashable, frame: Callable[[], np.ndarray]
+    ) -> list:
+        """Renderer overrides that show frame ``index`` of ``clip`` for one render, sending it first if this is its
+        first view (or it is not held).
+
+        :param renderer: the env's renderer
+        :param clip: which clip (a change frees the frames held)
+        :param index: which frame of the clip
+        :param frame: gives the frame's uint8 (side, side, 3) bytes, called only when they must be sent
+        """
+        if renderer is not self._renderer:
+            # Another renderer draws from here on; names of the last one's context are left to that context.
+            self._renderer, self._names = renderer, {}
+        if clip != self._clip:
+            renderer.delete_textures(list(self._names.values()))
+            self._clip, self._names = clip, {}
+        name = self._names.get(index)
+        if name is None and len(self._names) < self.capacity:
+            self._write(clip, index, frame)
+            name = renderer.make_textures(1)[0]
+            renderer.upload_texture(self._slot.texture_id, name)
+            self._names[index] = name
+        if name is not None:
+            return [renderer.texture_override(self._slot.texture_id, name)]
+        self._write(clip, index, frame)
+        self._slot.upload_if_changed(renderer)
+        return []
+
+    def _write(self, clip: Hashable, index: Hashable, frame: Callable[[], np.ndarray]) -> None:
+        if self._slot.holds != (clip, index):
+            self._slot.write(frame(), (self._side, self._side), holds=(clip, index))
 
 
 def camera_frame_override(physics: Physics, camera_id: int, rotation: np.ndarray) -> list:
