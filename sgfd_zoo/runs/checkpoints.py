@@ -4,7 +4,7 @@
     checkpoint_<n>_steps.zip                a checkpoint's model (written last: the checkpoint is complete)
     checkpoint_<part>_<n>_steps.pkl         its other parts: replay_buffer, vecnormalize (SB3's pickles)
     checkpoint_training_state_<n>_steps.npz what an exact resume needs (:mod:`sgfd_zoo.runs.training_state`;
-                                            a pickle, .pkl, before version 0.3)
+                                            a pickle, .pkl, before version 0.2.0)
 
 The names an index lists are plain file names of the run folder (:func:`sgfd_zoo.runs.safe.plain_name`): an index
 naming ``../x`` or ``/x`` is refused, never read.
