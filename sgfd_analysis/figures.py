@@ -36,6 +36,7 @@ from sgfd_zoo.arguments import ZooError, check_env_id
 from sgfd_zoo.experiment import wrap_like_training
 from sgfd_zoo.report.plot import mean_and_band
 from sgfd_zoo.runs.folders import RunFolder, env_name, find_runs, select_run
+from sgfd_zoo.runs.safe import make_folder, save_figure, write_text
 
 # Inches per image panel; the figures are grids of these.
 PANEL = 1.3
@@ -203,7 +204,7 @@ def saliency_maps_main(argv: list[str]) -> int:
     out = _out_dir(args)
     stem = f"saliency_maps_{env_name(run.env_id)}"
     png = out / f"{stem}.png"
-    saliency_figure(frames_all, maps_all, row_labels, steps, title).savefig(png, dpi=DPI)
+    save_figure(saliency_figure(frames_all, maps_all, row_labels, steps, title), out, png, dpi=DPI)
     npz = out / f"{stem}.npz"
     np.savez_compressed(
         npz,
@@ -325,7 +326,7 @@ def weighted_samples_main(argv: list[str]) -> int:
     stem = f"weighted_samples_{env_name(run.env_id)}"
     png = out / f"{stem}.png"
     frames = np.stack([newest_frame(o) for o in batch])
-    weighted_samples_figure(frames, weights, labels, names, args.columns, title).savefig(png, dpi=DPI)
+    save_figure(weighted_samples_figure(frames, weights, labels, names, args.columns, title), out, png, dpi=DPI)
     document = {
         "env_id": run.env_id,
         "run": str(run.path),
@@ -335,7 +336,7 @@ def weighted_samples_main(argv: list[str]) -> int:
         "mean_weight_per_domain": {str(d): float(weights[labels == d].mean()) for d in domains},
         **{key: value for key, value in result.items() if key != "weights"},
     }
-    (out / f"{stem}.json").write_text(json.dumps(document, indent=2))
+    write_text(out, out / f"{stem}.json", json.dumps(document, indent=2))
     print(status)
     for domain in domains:
         chosen = weights[labels == domain]
@@ -430,7 +431,7 @@ def classifier_accuracy_main(argv: list[str]) -> int:
     out = _out_dir(args)
     for env_id, by_algo in sorted(curves.items()):
         png = out / f"classifier_accuracy_{env_name(env_id)}.png"
-        accuracy_figure(env_id, by_algo).savefig(png, dpi=DPI)
+        save_figure(accuracy_figure(env_id, by_algo), out, png, dpi=DPI)
         for algo, runs in sorted(by_algo.items()):
             grid, mean, _ = mean_band(runs)
             threshold = runs[0]["threshold"]
@@ -465,9 +466,10 @@ def _wrap(title: str, fig: Figure) -> str:
 
 
 def _out_dir(args: argparse.Namespace) -> Path:
-    out = args.out or args.folder / "figures"
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+    """``-o``, else ``<folder>/figures``: made there, never through a link inside the log folder."""
+    if args.out is not None:
+        return make_folder(args.out, args.out)
+    return make_folder(args.folder, args.folder / "figures")
 
 
 def _steps(text: str) -> list[int]:

@@ -52,6 +52,7 @@ from sgfd_zoo.runs.files import FileWriteError, atomic_write, write_failure
 from sgfd_zoo.runs.folders import RunFolder, mark_finished
 from sgfd_zoo.runs.locks import ClaimedRun, claim_new_run, claim_run
 from sgfd_zoo.runs.resuming import choose_checkpoint, load_checkpoint, prepare_restart, run_to_resume
+from sgfd_zoo.runs.safe import refuse_links
 from sgfd_zoo.runs.training_state import RestoreTrainingState
 
 # Errors of a write that a full disk (or quota, or file size limit) causes.
@@ -305,6 +306,10 @@ class SGFDExperimentManager(ExperimentManager):
         get their own), or the one ``--run-id`` or ``--resume`` names, locked (one writer at a time); then the
         checkpoint to resume from, or the folder readied to start again from step 0."""
         holder = f"sgfd-zoo train --algo {self.algo} --env {self.env_name.gym_id} --seed {self.seed}"
+        # A link in the run's place would take its lock, checkpoints and logs out of the log folder (a shared one).
+        refuse_links(Path(self.log_folder), Path(self.log_path), "train in")
+        if (self.resume or self.run_id is not None) and Path(self.save_path).exists():
+            RunFolder(Path(self.save_path)).refuse_links()
         try:
             if self.resume or self.run_id is not None:
                 what = "--resume" if self.resume else f"--run-id {self.run_id}"

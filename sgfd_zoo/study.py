@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import csv
 import functools
+import re
 import shlex
 import sys
 from collections.abc import Sequence
@@ -46,6 +47,17 @@ from sgfd_zoo.report.statistics import write_statistics
 from sgfd_zoo.runs import provenance
 from sgfd_zoo.runs.folders import RunFolder, env_name, find_runs
 from sgfd_zoo.runs.records import RunRecord, find_records
+from sgfd_zoo.runs.safe import (
+    RefusedFile,
+    load_yaml,
+    make_folder,
+    redact,
+    refuse_links,
+    refuse_links_inside,
+    save_figure,
+    write_text,
+)
+from sgfd_zoo.spec_flags import check_train_flags
 from sgfd_zoo.sweep.cost import cost_lines, plan_runs
 from sgfd_zoo.sweep.plan import gpu_fraction
 
@@ -70,7 +82,10 @@ def read_spec(path: Path) -> dict[str, Any]:
     """The spec at ``path``, checked: known keys, algorithm keys and env ids, seeds, a list of train flags."""
     if not path.is_file():
         raise ZooError(f"SPEC {path} is not a file (a study's spec.yml, e.g. studies/mt-state/spec.yml)")
-    spec = yaml.safe_load(path.read_text()) or {}
+    try:
+        spec = load_yaml(path.read_text(), f"SPEC {path}") or {}  # a tag naming Python code: refused
+    except yaml.YAMLError as error:
+        raise ZooError(f"SPEC {path}: not a spec ({str(error).splitlines()[0]})") from None
     if not isinstance(spec, dict):
         raise ZooError(f"SPEC {path}: expected a mapping of {', '.join(sorted(SPEC_KEYS))}")
     unknown = sorted(set(spec) - SPEC_KEYS)
@@ -79,13 +94,18 @@ def read_spec(path: Path) -> dict[str, Any]:
     for key in ("name", "algos", "envs", "seeds"):
         if not spec.get(key):
             raise ZooError(f"SPEC {path}: {key} is required")
+    if not isinstance(spec["name"], str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", spec["name"]):
+        raise RefusedFile(
+            f"SPEC {path}: name {spec['name']!r} must be a plain name (letters, digits, '.', '_', '-'): it names the "
+            "study's log folder, logs/studies/<name>"
+        )
     spec["algos"] = checked_names("algos", spec["algos"], list(SGFD_ALGOS))
     import sgfd_envs
 
     spec["envs"] = checked_names("envs", spec["envs"], list(sgfd_envs.ENV_IDS))
     if not all(isinstance(seed, int) and seed >= 0 for seed in spec["seeds"]):
         raise ZooError(f"SPEC {path}: seeds must be integers >= 0, got {spec['seeds']}")
-    spec["train"] = [str(flag) for flag in spec.get("train") or []]
+    spec["train"] = check_train_flags([str(flag) for flag in spec.get("train") or []], path)
     spec.setdefault("n_episodes", 10)
     check_at_least("n_episodes", spec["n_episodes"], 1)
     spec.setdefault("reference", spec["algos"][0])
@@ -117,11 +137,20 @@ def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[
     results = [{**row, "run": str(record.path.relative_to(out))} for record in records for row in record.final_rows]
     written = list(evaluate.write_results(results, out))
     written += write_statistics(results, records, out, spec["reference"])[1]
-    written += diagnostics_figures(records, out / "plots")
-    (out / "diagnostics.md").write_text(diagnostics_summary(records))
-    (out / "command.txt").write_text(command + "\n")
-    (out / "versions.txt").write_text(versions())
-    return [*written, out / "diagnostics.md", out / "command.txt", out / "versions.txt"]
+    written += diagnostics_figures(records, out / "plots", root=out)
+    written += [write_text(out, out / "diagnostics.md", diagnostics_summary(records))]
+    written += [write_text(out, out / "command.txt", redact(command) + "\n")]
+    return [*written, write_text(out, out / "versions.txt", versions())]
+
+
+def refuse_output_links(out: Path) -> None:
+    """Before anything runs: a :class:`~sgfd_zoo.runs.safe.RefusedFile` when a file the export writes next to the
+    spec (tables, figures, records, command, versions) is a link or lies in a linked folder: a committed link
+    would take the write elsewhere."""
+    for name in (*evaluate.TABLES, "diagnostics.md", "command.txt", "versions.txt", "plots", "runs"):
+        refuse_links(out, out / name)
+        if (out / name).is_dir():
+            refuse_links_inside(out / name, out)
 
 
 def record_of(run: RunFolder, runs: Path, recorded: dict[tuple[str, str, int | None], RunRecord]) -> RunRecord:
@@ -137,12 +166,13 @@ def record_of(run: RunFolder, runs: Path, recorded: dict[tuple[str, str, int | N
     cell = recorded.get((run.algo, run.env_id, run.seed)) if run.seed is not None else None
     if cell is not None:
         # a record from before records named their run: the folder name was its only link
-        if cell.source == run.path.resolve() or (cell.source is None and cell.path.name == run.path.name):
+        made_from = cell.made_from(run)
+        if made_from or (made_from is None and cell.path.name == run.path.name):
             return cell
         raise ZooError(f"{run.path} (seed {run.seed}) is already recorded as {cell.path}: remove one of them")
     others = find_records(runs, [run.algo], [run.env_id])
     for other in others:
-        if other.source == run.path.resolve():  # an export of this run that was cut short
+        if other.made_from(run):  # an export of this run that was cut short
             return other
     record = RunRecord(runs / run.algo / run.path.name)
     if not record.path.exists():
@@ -170,9 +200,10 @@ def write_diagnostics(run: RunFolder, path: Path) -> Path:
     return path
 
 
-def diagnostics_figures(runs: Sequence[RunFolder | RunRecord], out: Path) -> list[Path]:
+def diagnostics_figures(runs: Sequence[RunFolder | RunRecord], out: Path, root: Path | None = None) -> list[Path]:
     """Per env: the classifier's accuracy, the weights' ESS and their range over training, per algorithm
-    (mean over seeds, and each seed faintly)."""
+    (mean over seeds, and each seed faintly), saved in ``out`` (no link in it below ``root``, its parent by
+    default)."""
     from matplotlib.figure import Figure
 
     from sgfd_zoo.report.plot import mean_and_band
@@ -213,9 +244,8 @@ def diagnostics_figures(runs: Sequence[RunFolder | RunRecord], out: Path) -> lis
         fig.suptitle(
             f"{env_id}: SGFD's classifier and weights over training (mean over seeds, seeds faint)", fontsize=9
         )
-        path = out / f"diagnostics_{env_name(env_id)}.png"
-        fig.savefig(path, dpi=100)
-        written.append(path)
+        root = out.parent if root is None else root
+        written.append(save_figure(fig, root, make_folder(root, out) / f"diagnostics_{env_name(env_id)}.png", dpi=100))
     return written
 
 
@@ -347,6 +377,7 @@ def main(argv: list[str]) -> int:
     if args.plan:
         print("\n".join(plan_lines(spec, out, args.gpus or 1, gpus_per_run)))
         return 0
+    refuse_output_links(out)
     from sgfd_zoo.sweep import command as sweep  # here: a plan imports no training stack (torch, Ray)
 
     # The command that trains and exports (an --export-only pass records the study's own command, not itself).

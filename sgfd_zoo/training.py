@@ -27,6 +27,7 @@ from sgfd_zoo.arguments import (
     has_flag,
     without_flags,
 )
+from sgfd_zoo.runs.safe import redact_argv
 
 MAX_SEED = 2**32 - 1  # numpy's limit, which rl-zoo3 seeds with
 # The zoo's own flags: not rl-zoo3's, taken out before its parser sees the command line.
@@ -163,7 +164,7 @@ def train(
             run_id=ours.run_id,
             progress_reporter=progress_reporter,
             check_only=check_only,
-            command=argv,
+            command=redact_argv(argv),  # recorded and printed: no URL's credentials
             default_save_freq=ours.save_freq is None,
             default_eval_freq=not has_flag(argv, "--eval-freq"),
             classifier_start=ours.classifier_start,
@@ -205,6 +206,7 @@ def enjoy(argv: Sequence[str]) -> int:
     chosen = ("--exp-id", "--load-best", "--load-checkpoint", "--load-last-checkpoint")
     if algo is not None and env_id is not None and not any(has_flag(argv, flag) for flag in chosen):
         argv += ["--exp-id", str(select_run(Path(folder), env_id, algo).run_id)]
+    check_saved_hyperparameters(Path(folder), algo or "ppo", env_id or "CartPole-v1", flag_value(argv, "--exp-id"))
     try:
         with command_line("sgfd-zoo enjoy", argv):
             rl_zoo3.enjoy.enjoy()
@@ -218,6 +220,35 @@ def enjoy(argv: Sequence[str]) -> int:
         # Otherwise what rl-zoo3 and the env refuse: no model in the folder, an env kwarg the id does not take.
         raise ZooError(first_line(error)) from None
     return 0
+
+
+def check_saved_hyperparameters(folder: Path, algo: str, env_id: str, exp_id: str | None) -> None:
+    """Read the ``config.yml`` and ``args.yml`` that rl-zoo3's enjoy is about to read, as data first: rl-zoo3 loads
+    them with PyYAML's unsafe loader and evaluates a ``normalize`` string, so a tag naming Python code, or a
+    hyperparameter that would run code, is refused here in one line (a :class:`~sgfd_zoo.runs.safe.RefusedFile`).
+    The model zip (SB3's format, a pickle) is loaded because the user asked for it.
+
+    :param folder: the log folder (``-f``)
+    :param algo: the algorithm key (rl-zoo3's default: ppo)
+    :param env_id: the env id (rl-zoo3's default: CartPole-v1)
+    :param exp_id: ``--exp-id`` (None or 0: the newest run, as rl-zoo3 picks it)
+    """
+    from rl_zoo3.utils import get_latest_run_id
+
+    from sgfd_zoo.runs.folders import env_name, read_yaml
+    from sgfd_zoo.runs.safe import RefusedFile, hyperparameter_problem
+
+    name = env_name(env_id).replace(":", "-")
+    run_id = int(exp_id) if exp_id is not None and exp_id.lstrip("-").isdigit() else 0
+    if run_id == 0:
+        run_id = get_latest_run_id(str(folder / algo), name)
+    log_path = folder / algo / f"{name}_{run_id}" if run_id > 0 else folder / algo  # as rl-zoo3's get_model_path
+    config_dir = log_path / name
+    for file in ("config.yml", "args.yml"):
+        saved, _ = read_yaml(config_dir / file)
+        for key, value in saved.items():
+            if (problem := hyperparameter_problem(str(key), value)) is not None:
+                raise RefusedFile(f"{config_dir / file}: refused: {problem}")
 
 
 @contextlib.contextmanager

@@ -33,7 +33,9 @@ from sgfd_zoo.report.statistics import (
     write_csv,
     write_statistics,
 )
+from sgfd_zoo.runs.files import UnreadableFile, read_json
 from sgfd_zoo.runs.folders import RunFolder, find_runs
+from sgfd_zoo.runs.safe import refuse_links, refuse_links_inside, write_text
 
 RESULT_FIELDS = ["algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes", "stand_in", "run"]
 
@@ -56,10 +58,9 @@ def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[st
         "model_mtime_ns": run.model_path.stat().st_mtime_ns,
         "modes": [label for label, _ in modes],
     }
-    if run.final_evaluation.exists():
-        kept = json.loads(run.final_evaluation.read_text())
-        if kept.get("key") == key:
-            return [{**row, "run": str(run.path)} for row in kept["rows"]]
+    kept = _kept_evaluation(run.final_evaluation)
+    if kept.get("key") == key and isinstance(kept.get("rows"), list):
+        return [{**row, "run": str(run.path)} for row in kept["rows"]]
     model = run.load_model()
     rows = []
     for label, mode_kwargs in modes:
@@ -82,8 +83,17 @@ def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[st
                 "run": str(run.path),
             }
         )
-    run.final_evaluation.write_text(json.dumps({"key": key, "rows": rows}, indent=1))
+    write_text(run.root, run.final_evaluation, json.dumps({"key": key, "rows": rows}, indent=1))
     return rows
+
+
+def _kept_evaluation(path: Path) -> dict[str, Any]:
+    """What an earlier ``evaluate`` kept in ``final_evaluation.json``; {} when there is none, or not one of those."""
+    try:
+        kept = read_json(path)
+    except UnreadableFile:
+        return {}
+    return kept if isinstance(kept, dict) and all(isinstance(row, dict) for row in kept.get("rows") or []) else {}
 
 
 def render_tables(results: list[dict[str, Any]]) -> str:
@@ -201,7 +211,7 @@ def write_results(results: list[dict[str, Any]], folder: Path, reps: int = 2000,
     """``results.csv`` and ``results.md`` (the paper's tables, then the benchmarks' layout) in ``folder``."""
     csv_path, md_path = folder / "results.csv", folder / "results.md"
     write_csv(results, csv_path, RESULT_FIELDS)
-    md_path.write_text(render_tables(results) + render_benchmark_tables(results, reps, seed))
+    write_text(folder, md_path, render_tables(results) + render_benchmark_tables(results, reps, seed))
     return csv_path, md_path
 
 
@@ -260,6 +270,21 @@ def _runs(count: int) -> str:
     return f"{count} run{'s' if count != 1 else ''}"
 
 
+#: What ``evaluate`` writes in the log folder (and ``plots/`` with the figures).
+TABLES = ("results.csv", "results.md", "scores.csv", "aggregate.csv", "aggregate.md")
+
+
+def refuse_output_links(folder: Path, runs: list[RunFolder]) -> None:
+    """Before any evaluation: a :class:`~sgfd_zoo.runs.safe.RefusedFile` when a file evaluate writes (the tables,
+    the figures, each run's ``final_evaluation.json``) is a link, or lies in a linked folder."""
+    for name in (*TABLES, "plots"):
+        refuse_links(folder, folder / name)
+    if (folder / "plots").is_dir():
+        refuse_links_inside(folder / "plots", folder)
+    for run in runs:
+        run.refuse_links()
+
+
 def _files_now(folder: Path) -> set[Path]:
     """The files of ``folder`` and ``folder/plots``."""
     return {path for where in (folder, folder / "plots") if where.is_dir() for path in where.iterdir()}
@@ -295,6 +320,7 @@ def main(argv: list[str]) -> int:
         print(line)
     if not runs:
         raise ZooError(f"no finished run under {args.folder} (expected <algo>/<EnvName>_<id>/<EnvName>.zip)")
+    refuse_output_links(args.folder, runs)
     replacing = replaced_tables(args.folder, len(runs))
     if replacing is not None:
         print(replacing)

@@ -13,6 +13,7 @@ import sgfd_envs
 from sgfd_zoo.algos import algo_sort_key, column_name
 from sgfd_zoo.arguments import ZooError
 from sgfd_zoo.runs.folders import env_name, find_runs
+from sgfd_zoo.runs.safe import make_folder, save_figure
 
 Curve = tuple[np.ndarray, np.ndarray]
 
@@ -77,11 +78,11 @@ def draw_env(env_id: str, curves: dict[str, dict[str, list[Curve]]]) -> Figure:
     return fig
 
 
-def plot_env(env_id: str, curves: dict[str, dict[str, list[Curve]]], out: Path) -> Path:
-    """:func:`draw_env`, saved as ``out/<EnvName>.png``; returns its path."""
+def plot_env(env_id: str, curves: dict[str, dict[str, list[Curve]]], out: Path, root: Path | None = None) -> Path:
+    """:func:`draw_env`, saved as ``out/<EnvName>.png`` (written whole, no link followed below ``root``, ``out``
+    by default); returns its path."""
     path = out / f"{env_name(env_id)}.png"
-    draw_env(env_id, curves).savefig(path, dpi=100)
-    return path
+    return save_figure(draw_env(env_id, curves), out if root is None else root, path, dpi=100)
 
 
 def main(argv: list[str]) -> int:
@@ -95,7 +96,8 @@ def main(argv: list[str]) -> int:
     if not curves:
         raise ZooError(f"no evaluations_<split>.npz under {args.folder}/<algo>/<run>/ (train with --eval-freq > 0)")
     out = args.out or args.folder / "plots"
-    out.mkdir(parents=True, exist_ok=True)
+    root = args.out or args.folder  # the folder given: nothing below it is a link
+    make_folder(root, out)
     for env_id, env_curves in sorted(curves.items()):
-        print(f"Wrote {plot_env(env_id, env_curves, out)}")
+        print(f"Wrote {plot_env(env_id, env_curves, out, root)}")
     return 0

@@ -22,6 +22,7 @@ from sgfd_envs.benchmarks import dcs, dmcgb2
 from sgfd_zoo.algos import algo_sort_key, column_name
 from sgfd_zoo.runs.folders import RunFolder
 from sgfd_zoo.runs.records import RunRecord
+from sgfd_zoo.runs.safe import make_folder, save_figure, write_file, write_text
 
 MAX_RETURN = 1000.0
 SCORE_FIELDS = ["algo", "env", "seed", "split", "return"]
@@ -249,7 +250,7 @@ def write_figures(
     from matplotlib import pyplot as plt
     from rliable import metrics, plot_utils
 
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out.parent, out)  # no link: the figures stay in the folder the command was given
     written = []
     for split in sorted({row["split"] for row in rows}, key=split_sort_key):
         split_rows = [row for row in rows if row["split"] == split]
@@ -311,16 +312,22 @@ def _value(rows: Sequence[dict[str, Any]], algo: str, metric: str, key: str) -> 
 
 
 def _save(fig: Any, path: Path, plt: Any) -> Path:
-    fig.savefig(path, dpi=100, bbox_inches="tight")
+    """``fig`` saved to ``<folder>/plots/<name>`` (written whole; no link followed below ``<folder>``)."""
+    save_figure(fig, path.parent.parent, path, dpi=100, bbox_inches="tight")
     plt.close(fig)
     return path
 
 
 def write_csv(rows: Sequence[dict[str, Any]], path: Path, fields: Sequence[str]) -> Path:
-    with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(fields))
-        writer.writeheader()
-        writer.writerows(rows)
+    """``rows`` as a CSV file, written whole; a link at ``path`` is refused, not followed."""
+
+    def write(tmp: str) -> None:
+        with open(tmp, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=list(fields))
+            writer.writeheader()
+            writer.writerows(rows)
+
+    write_file(path.parent, path, write)
     return path
 
 
@@ -346,7 +353,6 @@ def write_statistics(
     markdown = render_aggregate(rows, scores, {row["split"] for row in results if on_stand_in(row)})
     files = [write_csv(scores, folder / "scores.csv", SCORE_FIELDS)]
     files.append(write_csv(rows, folder / "aggregate.csv", AGGREGATE_FIELDS))
-    (folder / "aggregate.md").write_text(markdown)
-    files.append(folder / "aggregate.md")
+    files.append(write_text(folder, folder / "aggregate.md", markdown))
     files += write_figures(rows, runs, folder / "plots", reps, seed)
     return markdown, files

@@ -38,7 +38,7 @@ class CheckpointPart:
     One file of a checkpoint: what it holds, how it is written and how a resumed model gets it back.
 
     :param name: its key in ``checkpoint.json`` and in its file name (``checkpoint_<name>_<steps>_steps<suffix>``)
-    :param suffix: ``.pkl`` or ``.zip`` (the suffix decides how a file found without its index is checked)
+    :param suffix: ``.pkl``, ``.npz`` or ``.zip`` (the suffix decides how a file found without its index is checked)
     :param save: writes the part of ``model`` to the path it is given
     :param restore: loads it into the resumed ``model``; None for the model itself (loaded first, by the class)
     :param applies: whether ``model`` has this part
@@ -69,7 +69,7 @@ def _restore_vec_normalize(model: BaseAlgorithm, path: str) -> None:
 CHECKPOINT_PARTS: tuple[CheckpointPart, ...] = (
     CheckpointPart(
         "training_state",
-        ".pkl",
+        ".npz",  # data, not a pickle (:mod:`sgfd_zoo.runs.training_state`)
         save=training_state.save,
         applies=lambda model: training_state.unavailable(model) is None,
     ),

@@ -2,7 +2,12 @@
 
     checkpoint.json                         the index of the two newest checkpoints: each file's size, sha256
     checkpoint_<n>_steps.zip                a checkpoint's model (written last: the checkpoint is complete)
-    checkpoint_<part>_<n>_steps.pkl         its other parts: replay_buffer, vecnormalize, training_state
+    checkpoint_<part>_<n>_steps.pkl         its other parts: replay_buffer, vecnormalize (SB3's pickles)
+    checkpoint_training_state_<n>_steps.npz what an exact resume needs (:mod:`sgfd_zoo.runs.training_state`;
+                                            a pickle, .pkl, before version 0.2.0)
+
+The names an index lists are plain file names of the run folder (:func:`sgfd_zoo.runs.safe.plain_name`): an index
+naming ``../x`` or ``/x`` is refused, never read.
 
 Files only: what a checkpoint holds and when it is taken is :mod:`sgfd_zoo.runs.checkpoint_callback`'s.
 """
@@ -16,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from sgfd_zoo.runs.files import TMP_PREFIX, StoredFile, UnreadableFile, read_json, sha256_of, write_json
+from sgfd_zoo.runs.safe import plain_name
 
 CHECKPOINT_INDEX = "checkpoint.json"
 INDEX_FORMAT = 2  # 1: the single-checkpoint index before sizes and checksums ({"num_timesteps", "model", ...})
@@ -55,8 +61,11 @@ class Checkpoint:
         return {"num_timesteps": self.num_timesteps, "files": {p: f.to_json() for p, f in self.files.items()}}
 
     @classmethod
-    def from_json(cls, entry: dict[str, Any]) -> Checkpoint:
+    def from_json(cls, entry: dict[str, Any], index: Path) -> Checkpoint:
+        """The checkpoint an entry of ``index`` describes; a RefusedFile when it names a file outside its folder."""
         files = {part: StoredFile(**stored) for part, stored in entry["files"].items()}
+        for stored in files.values():
+            plain_name(stored.name, index)
         return cls(int(entry["num_timesteps"]), files)
 
 
@@ -69,9 +78,10 @@ def read_index(folder: Path) -> list[Checkpoint]:
         return []
     try:
         if "checkpoints" in index:
-            return [Checkpoint.from_json(entry) for entry in index["checkpoints"]]
-        names = {part: StoredFile(index[part]) for part in ("replay_buffer", "vecnormalize") if part in index}
-        return [Checkpoint(int(index["num_timesteps"]), {**names, "model": StoredFile(index["model"])})]
+            return [Checkpoint.from_json(entry, path) for entry in index["checkpoints"]]
+        parts = [part for part in ("replay_buffer", "vecnormalize", "model") if part in index or part == "model"]
+        names = {part: StoredFile(plain_name(index[part], path)) for part in parts}
+        return [Checkpoint(int(index["num_timesteps"]), names)]
     except (KeyError, TypeError, ValueError, AttributeError) as error:
         raise UnreadableFile(f"{path} is not a checkpoint index ({type(error).__name__}: {error})") from None
 
@@ -112,9 +122,12 @@ def remove_checkpoint_files(folder: Path, keep: Iterable[Checkpoint]) -> list[st
     is refused either way (:mod:`sgfd_zoo.runs.locks`)."""
     kept = {stored.name for checkpoint in keep for stored in checkpoint.files.values()}
     removed = []
-    leftovers = [*Path(folder).glob(f"{TMP_PREFIX}*"), *Path(folder).glob(f"*/{TMP_PREFIX}*")]
+    # The run's own subfolders only: a linked one is not followed (what it points to is not the run's).
+    subfolders = [path for path in Path(folder).iterdir() if path.is_dir() and not path.is_symlink()]
+    leftovers = [path for where in [Path(folder), *subfolders] for path in where.glob(f"{TMP_PREFIX}*")]
     for path in [*Path(folder).glob("checkpoint_*_steps.*"), *leftovers]:
-        if path.is_file() and path.name not in kept and path.name != CHECKPOINT_INDEX:
+        # a link is removed itself (unlink never follows one), not what it points to
+        if (path.is_file() or path.is_symlink()) and path.name not in kept and path.name != CHECKPOINT_INDEX:
             path.unlink(missing_ok=True)
             removed.append(path.name)
     return sorted(removed)

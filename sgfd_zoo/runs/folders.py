@@ -15,7 +15,8 @@
     <log folder>/<algo>/<EnvName>_<id>.log      a sweep run's output, beside its folder
 
 A study keeps a finished run's compact record (:mod:`sgfd_zoo.runs.records`). Every file is written through
-:func:`sgfd_zoo.runs.files.atomic_write`.
+:func:`sgfd_zoo.runs.files.atomic_write`. The files are data (:mod:`sgfd_zoo.runs.safe`): YAML safe-loaded, names in
+indexes confined to the run, no link inside a log folder followed, no credential of a URL recorded.
 
 Whether a run is finished is decided here only (:attr:`RunFolder.finished`). The module reads and writes files
 and nothing more: it imports nothing of the experiment, and plotting and the sweep's planning use it without
@@ -43,7 +44,17 @@ from sgfd_zoo.algos import SGFD_ALGOS
 from sgfd_zoo.arguments import ZooError, check_env_id
 from sgfd_zoo.runs import provenance
 from sgfd_zoo.runs.checkpoints import Checkpoint, read_index, scan_checkpoints
-from sgfd_zoo.runs.files import StoredFile, UnreadableFile, atomic_write, read_json, write_json
+from sgfd_zoo.runs.files import StoredFile, UnreadableFile, read_json, write_json
+from sgfd_zoo.runs.safe import (
+    RefusedFile,
+    load_yaml,
+    plain_name,
+    redact_argv,
+    redact_values,
+    refuse_links,
+    refuse_links_inside,
+    write_text,
+)
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -89,6 +100,11 @@ class NamedRun:
     @property
     def run_id(self) -> int:
         return int(self.path.name.rpartition("_")[2])
+
+    @property
+    def root(self) -> Path:
+        """The folder of its algorithms' folders (a log folder, a study's ``runs``): nothing below it is a link."""
+        return self.path.parent.parent
 
     @property
     def config_dir(self) -> Path:
@@ -141,6 +157,13 @@ class RunFolder(NamedRun):
     def log_file(self) -> Path:
         """A sweep run's output: next to the folder, so a run that fails early leaves no half-made folder."""
         return self.path.with_name(f"{self.path.name}.log")
+
+    def refuse_links(self) -> None:
+        """A :class:`~sgfd_zoo.runs.safe.RefusedFile` when the run's place holds a symbolic link (its folder, a
+        file or folder in it, its algorithm's folder, its sweep log): writing, copying or deleting there would
+        follow it out of the log folder."""
+        refuse_links(self.root, self.log_file)
+        refuse_links_inside(self.path, self.root)
 
     @property
     def model_path(self) -> Path:
@@ -200,6 +223,7 @@ class RunFolder(NamedRun):
             None where they are unknown (a manager built in Python): no command is recorded
         :param step: the step the run starts from
         """
+        self.refuse_links()
         self.config_dir.mkdir(parents=True, exist_ok=True)
         env_kwargs = dict(config.get("env_kwargs") or {})
         stand_ins = {
@@ -207,15 +231,15 @@ class RunFolder(NamedRun):
             for label, mode in sgfd_envs.evaluation_modes(self.env_id)
         }
         args = {**args, "stand_in": {label: what for label, what in stand_ins.items() if what is not None}}
-        atomic_write(self.config_dir / "config.yml", lambda tmp: Path(tmp).write_text(yaml.dump(config)))
-        atomic_write(self.config_dir / "args.yml", lambda tmp: Path(tmp).write_text(yaml.dump(args)))
+        # A URL's credentials (an Optuna --storage) are not kept: the files are shared, and readable by others.
+        write_text(self.root, self.config_dir / "config.yml", yaml.dump(redact_values(config)))
+        write_text(self.root, self.config_dir / "args.yml", yaml.dump(redact_values(args)))
         if argv is not None:
-            command = shlex.join(["sgfd-zoo", "train", *argv]) + "\n"
-            atomic_write(self.command_file, lambda tmp: Path(tmp).write_text(command))
+            write_text(self.root, self.command_file, shlex.join(["sgfd-zoo", "train", *redact_argv(argv)]) + "\n")
             self.legacy_command_file.unlink(missing_ok=True)
         block = f"=== from step {step}, {time.strftime('%Y-%m-%d %H:%M:%S')}\n{provenance.versions()}"
         earlier = self.versions_file.read_text() if self.versions_file.exists() else ""
-        atomic_write(self.versions_file, lambda tmp: Path(tmp).write_text(earlier + block))
+        write_text(self.root, self.versions_file, earlier + block)
 
     @functools.cached_property
     def args(self) -> dict[str, Any]:
@@ -289,7 +313,9 @@ class RunFolder(NamedRun):
         if marker is not None:
             try:
                 written = StoredFile(**marker["model"])
-                steps = int(marker["num_timesteps"]) if written.problem(self.path, full=False) is None else None
+                plain_name(written.name, self.finished_marker)
+                whole = written.name == self.model_path.name and written.problem(self.path, full=False) is None
+                steps = int(marker["num_timesteps"]) if whole else None
             except (KeyError, TypeError, ValueError):
                 steps = None
         if steps is None:
@@ -332,7 +358,12 @@ class RunFolder(NamedRun):
             if self.algo not in ALGOS:
                 raise ZooError(f"{self.path}: unknown algorithm {self.algo!r}; choose from {', '.join(SGFD_ALGOS)}")
             algo_class = ALGOS[self.algo]
-        return algo_class.load(self.model_path, custom_objects={"buffer_size": 1}, device=device)
+        try:
+            return algo_class.load(self.model_path, custom_objects={"buffer_size": 1}, device=device)
+        except Exception as error:  # SB3 raises what the zip's contents make it raise
+            reason = (str(error).strip().splitlines() or [""])[0]
+            what = f"{type(error).__name__}: {reason}"
+            raise ZooError(f"{self.model_path}: the final model does not load ({what})") from None
 
 
 def _final_model_steps(path: Path) -> int | None:
@@ -369,9 +400,11 @@ def run_paths(folder: Path, algos: Iterable[str] | None, env_ids: Iterable[str] 
     for algo_dir in sorted(path for path in Path(folder).iterdir() if path.is_dir()):
         if algos and algo_dir.name not in algos:
             continue
+        refuse_links(folder, algo_dir, "read runs in")
         for path in algo_dir.iterdir():
             env_id = _run_env_id(path) if path.is_dir() else None
             if env_id is not None and (not env_ids or env_id in env_ids):
+                refuse_links(folder, path, "read")
                 paths.append(path)
     return paths
 
@@ -409,20 +442,45 @@ def select_run(folder: Path, env_id: str, algo: str, run_id: int | None = None) 
 
 
 def read_evaluations(path: Path) -> dict[str, np.ndarray] | None:
+    """``timesteps`` (n evaluations), ``results`` (n x episodes) and what else an ``evaluations_<split>.npz``
+    holds, or None without one; an :class:`UnreadableFile` when it is not such a file (arrays of Python objects
+    included: they would be pickles, which are never loaded)."""
     if not path.exists():
         return None
-    with np.load(path) as data:
-        return {key: data[key] for key in data.files}
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: data[key] for key in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        raise UnreadableFile(f"{path} is unreadable ({type(error).__name__}: {error})") from None
+    steps, results = arrays.get("timesteps"), arrays.get("results")
+    if (
+        steps is None
+        or results is None
+        or steps.dtype.kind not in "iuf"
+        or results.dtype.kind not in "iuf"
+        or steps.ndim != 1
+        or results.shape[:1] != steps.shape
+        or results.ndim != 2
+    ):
+        held = ", ".join(f"{key} {array.dtype} {array.shape}" for key, array in arrays.items()) or "nothing"
+        raise UnreadableFile(
+            f"{path} is not an evaluations file (expected numbers: timesteps (n) and results (n x episodes); it "
+            f"holds {held})"
+        )
+    return arrays
 
 
 def read_yaml(path: Path) -> tuple[dict[str, Any], str | None]:
-    """The mapping in a yaml file ({} when absent) and, when it cannot be read, why."""
+    """The mapping in a yaml file ({} when absent) and, when it cannot be read, why; a
+    :class:`~sgfd_zoo.runs.safe.RefusedFile` when it holds a tag that names Python code (it is data only)."""
     if not path.exists():
         return {}, None
     try:
-        loaded = yaml.load(path.read_text(), Loader=yaml.UnsafeLoader)
+        loaded = load_yaml(path.read_text(), path)
         # rl-zoo3 writes an OrderedDict, or a list of (key, value) pairs
         return (dict(loaded) if loaded else {}), None
+    except RefusedFile:
+        raise
     except (OSError, ValueError, TypeError, yaml.YAMLError) as error:
         return {}, f"{path} is unreadable ({type(error).__name__}: {str(error).splitlines()[0]})"
 

@@ -1,32 +1,46 @@
 """A study's compact records of finished runs, kept next to its spec, with no model:
 
 <study>/runs/<algo>/<EnvName>_<id>/         the same name as the run folder it was exported from
-    config.yml, args.yml, versions.txt      the run's hyperparameters, arguments and what trained it
-    source.txt                              the run folder it was exported from
+    config.yml, args.yml, versions.txt      the run's hyperparameters, arguments and what trained it (no URL's
+                                            credentials; args.yml's log_folder only the folder's name)
+    source.txt                              the run it was exported from: <algo>/<run> and a digest of its log
+                                            folder's path (records of earlier versions: the absolute path)
     evaluations_<split>.npz                 as in the run folder
     diagnostics.csv                         the logged figures the study reads, one row per logged step
     final_evaluation.csv                    the final model's evaluation, one row per split (written last)
+
+Records are committed and shared: a record is made of plain files (a link in the run or in the record is refused,
+never followed), and reading one never follows a link either.
 """
 
 from __future__ import annotations
 
 import csv
 import functools
-import shutil
+import hashlib
+import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 import sgfd_envs
-from sgfd_zoo.runs.files import UnreadableFile, atomic_write
-from sgfd_zoo.runs.folders import NamedRun, RunFolder, run_paths
+from sgfd_zoo.runs.files import UnreadableFile
+from sgfd_zoo.runs.folders import NamedRun, RunFolder, read_evaluations, run_paths
+from sgfd_zoo.runs.safe import copy_file, load_yaml, make_folder, redact, refuse_links_inside, write_file, write_text
 
 FINAL_EVALUATION_FIELDS = ("algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes")
 # Kept when present: whether the split played on a built-in stand-in of a benchmark's data (older records lack it).
 OPTIONAL_EVALUATION_FIELDS = ("stand_in",)
+#: source.txt: the run, and a digest of its log folder's absolute path (which names people and machines).
+_SOURCE = re.compile(r"(?P<run>[^/\s]+/[^/\s]+) in log folder (?P<digest>sha256:[0-9a-f]{16})")
+
+
+def _folder_digest(folder: Path) -> str:
+    return "sha256:" + hashlib.sha256(str(Path(folder).resolve()).encode()).hexdigest()[:16]
 
 
 @dataclass(frozen=True)
@@ -50,10 +64,16 @@ class RunRecord(NamedRun):
     def source_file(self) -> Path:
         return self.path / "source.txt"
 
-    @property
-    def source(self) -> Path | None:
-        """The log run this record was made from (None for a record written before records named it)."""
-        return Path(self.source_file.read_text().strip()) if self.source_file.exists() else None
+    def made_from(self, run: RunFolder) -> bool | None:
+        """Whether this record was made from the log run ``run``; None for a record written before records named
+        their run. Reads the absolute paths that records of earlier versions hold too."""
+        if not self.source_file.exists():
+            return None
+        source = self.source_file.read_text().strip()
+        match = _SOURCE.fullmatch(source)
+        if match is None:
+            return Path(source) == run.path.resolve()
+        return match["run"] == f"{run.algo}/{run.path.name}" and match["digest"] == _folder_digest(run.root)
 
     @functools.cached_property
     def final_rows(self) -> list[dict[str, Any]]:
@@ -104,15 +124,20 @@ class RunRecord(NamedRun):
         :param final_rows: its final model's evaluation (``sgfd-zoo evaluate``'s rows)
         :param diagnostics: writes the logged figures to the path it is given
         """
-        self.path.mkdir(parents=True, exist_ok=True)
+        root = self.root
+        run.refuse_links()  # a linked versions.txt would copy whatever it points to into a committed record
+        make_folder(root, self.path)
+        refuse_links_inside(self.path, root)
         self.final_evaluation.unlink(missing_ok=True)
-        atomic_write(self.source_file, lambda tmp: Path(tmp).write_text(f"{run.path.resolve()}\n"))
+        write_text(root, self.source_file, f"{run.algo}/{run.path.name} in log folder {_folder_digest(run.root)}\n")
         for npz in sorted(run.path.glob("evaluations_*.npz")):
-            atomic_write(self.path / npz.name, functools.partial(shutil.copyfile, npz))
+            read_evaluations(npz)  # data only: an UnreadableFile otherwise
+            copy_file(run.root, npz, root, self.path / npz.name)
         for name in ("config.yml", "args.yml", run.versions_file.name):
             if (run.config_dir / name).exists():
-                atomic_write(self.path / name, functools.partial(shutil.copyfile, run.config_dir / name))
-        atomic_write(self.diagnostics, lambda tmp: diagnostics(Path(tmp)))
+                change = functools.partial(_shared_args, source=run.config_dir / name) if name == "args.yml" else redact
+                copy_file(run.root, run.config_dir / name, root, self.path / name, change)
+        write_file(root, self.diagnostics, lambda tmp: diagnostics(Path(tmp)))
 
         def write_rows(tmp: str) -> None:
             with open(tmp, "w", newline="") as handle:
@@ -121,8 +146,17 @@ class RunRecord(NamedRun):
                 writer.writeheader()
                 writer.writerows(final_rows)
 
-        atomic_write(self.final_evaluation, write_rows)
+        write_file(root, self.final_evaluation, write_rows)
         self.__dict__.pop("final_rows", None)
+
+
+def _shared_args(text: str, source: Path) -> str:
+    """rl-zoo3's ``args.yml`` as a record keeps it: no URL's credentials, and of its log folder only the name."""
+    args = load_yaml(text, source)
+    if isinstance(args, dict) and isinstance(args.get("log_folder"), str):
+        args["log_folder"] = Path(args["log_folder"]).name
+        return redact(yaml.dump(args))
+    return redact(text)
 
 
 def find_records(
@@ -135,5 +169,8 @@ def find_records(
     :param algos: only these algorithm keys
     :param env_ids: only these env ids
     """
-    records = [RunRecord(path) for path in run_paths(folder, algos, env_ids)]
+    paths = run_paths(folder, algos, env_ids)
+    for path in paths:  # committed files: a link would read (and show in the tables) what it points to
+        refuse_links_inside(path, folder, "read")
+    records = [RunRecord(path) for path in paths]
     return sorted(records, key=lambda record: (record.algo, record.env_id, record.run_id))

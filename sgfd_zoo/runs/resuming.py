@@ -115,6 +115,10 @@ def load_checkpoint(
     exact = "training_state" in checkpoint.files
     state = None
     try:
+        # Read first: it is data (the model and the buffer are SB3's pickles, trusted as the run's own), and put
+        # back when the resumed training starts, after everything that builds the run.
+        if exact:
+            state = training_state.load(run.path / checkpoint.files["training_state"].name)
         # with the envs' state restored, the checkpoint's last observation is the envs' own
         model = algo_class.load(
             run.path / checkpoint.files["model"].name, env=env, force_reset=not exact, **load_kwargs
@@ -122,8 +126,6 @@ def load_checkpoint(
         for part in CHECKPOINT_PARTS:
             if part.restore is not None and part.name in checkpoint.files:
                 part.restore(model, str(run.path / checkpoint.files[part.name].name))
-        if exact:  # put back when the resumed training starts, after everything that builds the run
-            state = training_state.load(run.path / checkpoint.files["training_state"].name)
     except Exception as error:
         env.close()
         raise ZooError(

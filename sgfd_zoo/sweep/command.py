@@ -169,6 +169,8 @@ def main(argv: list[str], recorded: Collection[tuple[str, str, int | None]] = ()
     jobs, done, problems = plan(args.folder, args.algos, args.envs, args.seeds, recorded)
     for problem in problems:
         print(f"sweep: {problem}; read as if it were absent")
+    for job in jobs:  # a link in a run's place would take its writes out of the log folder
+        job.run.refuse_links()
     n_resume = sum(job.run.checkpoint is not None for job in jobs)
     print(
         f"sweep: {len(jobs) + len(done)} runs ({len(args.algos)} algos x {len(args.envs)} envs x {len(args.seeds)} "

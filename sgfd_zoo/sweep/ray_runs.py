@@ -107,7 +107,8 @@ def _wait_for_lock(job: Job) -> None:
 @contextlib.contextmanager
 def _output_to(path: Path) -> Iterator[None]:
     """Send this process's stdout and stderr (file descriptors, so C libraries' output too) to ``path``."""
-    log = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    # O_NOFOLLOW: a link put in the log's place is refused (ELOOP), not appended through
+    log = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW, 0o644)
     try:
         with _descriptors_to(log, (1, 2)):
             yield
@@ -306,8 +307,16 @@ def start_ray(args: argparse.Namespace) -> None:
         cpus, gpus = ray.cluster_resources().get("CPU", 0), ray.cluster_resources().get("GPU", 0)
         print(f"sweep: Ray cluster at {args.address}: {cpus:g} CPUs, {gpus:g} GPUs")
         return
-    # "local": a new instance even if `ray start` left one running on this machine.
-    ray.init(address="local", num_cpus=args.num_cpus, include_dashboard=False, **quiet)
+    # "local": a new instance even if `ray start` left one running on this machine (or RAY_ADDRESS names one).
+    with _loopback_only():
+        ray.init(address="local", num_cpus=args.num_cpus, include_dashboard=False, _node_ip_address=LOOPBACK, **quiet)
+    listening = ray.nodes()[0]["NodeManagerAddress"]
+    if listening != LOOPBACK:
+        ray.shutdown()
+        raise ZooError(
+            f"the local Ray instance took the address {listening}, not {LOOPBACK}: its processes would listen on "
+            "every interface; start a cluster as you need it (ray start) and give it with --address"
+        )
     cpus, gpus = ray.cluster_resources().get("CPU", 0), ray.cluster_resources().get("GPU", 0)
     if args.ray_logs:
         print(f"sweep: local Ray instance: {cpus:g} CPUs, {gpus:g} GPUs")
@@ -315,6 +324,27 @@ def start_ray(args: argparse.Namespace) -> None:
         # Ray would wait forever for a GPU no node of this instance has.
         ray.shutdown()
         raise ZooError(f"--gpus-per-run {args.gpus_per_run:g}: Ray sees {gpus:g} GPUs on this machine")
+
+
+LOOPBACK = "127.0.0.1"
+
+
+@contextlib.contextmanager
+def _loopback_only() -> Iterator[None]:
+    """While a local instance starts: Ray takes 127.0.0.1 as its node's address, as it does on macOS and Windows.
+
+    A node whose address is 127.0.0.1 binds its GCS, raylet and workers to loopback only; on Linux ``ray.init``
+    otherwise replaces that address by the machine's reachable one (``services.resolve_ip_for_localhost``), and
+    they listen on every interface. Nothing outside this machine needs them in a local sweep.
+    """
+    from ray._private import ray_constants
+
+    saved = ray_constants.ENABLE_RAY_CLUSTER
+    ray_constants.ENABLE_RAY_CLUSTER = False
+    try:
+        yield
+    finally:
+        ray_constants.ENABLE_RAY_CLUSTER = saved
 
 
 def _connect(address: str, quiet: dict[str, Any], show_ray_output: bool) -> None:

@@ -3,8 +3,6 @@ same parameters as 2N steps straight, bit for bit (on the CPU)."""
 
 from __future__ import annotations
 
-import pickle
-
 import pytest
 import torch as th
 from stable_baselines3 import SAC
@@ -12,7 +10,8 @@ from stable_baselines3.common.vec_env import VecFrameStack, VecTransposeImage
 
 import sgfd_envs
 from sb3_sgfd import AMBS, SGFD_SAC, AMBSPolicy, DomainReplayBuffer, MlpPolicy
-from sgfd_zoo.runs.training_state import RestoreTrainingState, capture
+from sgfd_zoo.runs import training_state
+from sgfd_zoo.runs.training_state import RestoreTrainingState
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 TINY = dict(learning_starts=60, batch_size=16, seed=3, policy_kwargs=dict(net_arch=[16, 16]))
@@ -51,18 +50,18 @@ def test_n_steps_saved_and_resumed_then_n_more_are_2n_steps_straight(name, tmp_p
     algo, make = AGENTS[name]
     straight = make().learn(320)
     first = make().learn(160)
-    # what a checkpoint holds: the model, the replay buffer and the training state, taken between two steps
-    state = capture(first)
+    # what a checkpoint holds: the model, the replay buffer and the training state (data: an .npz), taken between
+    # two steps
+    training_state.save(first, str(tmp_path / "state.npz"))
     first.save(tmp_path / "model")
     first.save_replay_buffer(tmp_path / "buffer")
-    (tmp_path / "state.pkl").write_bytes(pickle.dumps(state))
     env = first.get_env()
     del first
     # a new process would build the envs again from the same arguments
     # force_reset=False: the envs continue from their restored state, so the saved last observation stands
     resumed = algo.load(tmp_path / "model", env=pixel_env() if name == "AMBS" else state_env(), force_reset=False)
     resumed.load_replay_buffer(tmp_path / "buffer")
-    restore = RestoreTrainingState(pickle.loads((tmp_path / "state.pkl").read_bytes()))
+    restore = RestoreTrainingState(training_state.load(tmp_path / "state.npz"))
     resumed.learn(160, reset_num_timesteps=False, callback=restore)
     env.close()
     assert resumed.num_timesteps == straight.num_timesteps and resumed._n_updates == straight._n_updates

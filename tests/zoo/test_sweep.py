@@ -479,6 +479,27 @@ def test_sweep_attaches_to_a_ray_start_cluster_with_token_authentication(tmp_pat
     assert command[command.index("--run-id") + 1] == "1" and "default_worker" not in " ".join(command)
 
 
+def test_a_local_sweeps_ray_listens_on_loopback_only() -> None:
+    import argparse
+
+    import psutil
+
+    ray_runs.start_ray(argparse.Namespace(address=None, num_cpus=1, ray_logs=False, gpus_per_run=0.0))
+    try:
+        assert ray.get(ray.remote(lambda: 1).remote()) == 1  # a worker process, listening too
+        assert [node["NodeManagerAddress"] for node in ray.nodes()] == ["127.0.0.1"]
+        processes = {process.pid: process.name() for process in psutil.Process().children(recursive=True)}
+        listening = [
+            (processes[connection.pid], connection.laddr.ip)
+            for connection in psutil.net_connections("inet")
+            if connection.status == psutil.CONN_LISTEN and connection.pid in processes
+        ]
+    finally:
+        ray.shutdown()
+    assert {"gcs_server", "raylet"} <= {name for name, _ in listening}, listening
+    assert all(ip in ("127.0.0.1", "::ffff:127.0.0.1", "::1") for _, ip in listening), listening
+
+
 def test_liveness_counts_a_head_that_stops_taking_connections_as_lost_after_failures_in_a_row() -> None:
     with socket.create_server(("127.0.0.1", 0)) as server:
         address = f"127.0.0.1:{server.getsockname()[1]}"
