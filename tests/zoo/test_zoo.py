@@ -216,6 +216,26 @@ def test_table_renders_in_the_papers_layout():
             "n_timesteps must be a positive integer, got 0",
         ),
         (["train", "--env", ENV_ID, *TINY, "--eval-episodes", "0"], "--eval-episodes must be >= 1, got 0"),
+        # values rl-zoo3 would evaluate as Python: read first, each refusal naming the key
+        (
+            ["train", "--env", ENV_ID, *TINY, "--hyperparams", "learning_rate:1e-3x"],
+            "-params learning_rate:1e-3x: not a Python value (invalid decimal literal); expected a number",
+        ),
+        (
+            ["train", "--env", ENV_ID, *TINY, "--env-kwargs", "obs_type:pixels"],
+            """--env-kwargs obs_type:pixels: pixels is not defined; a string needs quotes that reach Python, e.g. """
+            '''--env-kwargs obs_type:"'pixels'"''',
+        ),
+        (
+            ["train", "--env", ENV_ID, *TINY, "-params", "policy_kwargs:dict(activation_fn=nn.Relu)"],
+            "-params policy_kwargs:dict(activation_fn=nn.Relu): nn.Relu is not defined",
+        ),
+        (
+            ["train", "--env", ENV_ID, *TINY, "--eval-env-kwargs", "image_size"],
+            "--eval-env-kwargs 'image_size': expected",
+        ),
+        (["optimize", "--env", ENV_ID, "--quick", "-params", "gamma:"], "-params gamma: no value after the colon"),
+        (["enjoy", "--env", ENV_ID, "--env-kwargs", "split:test"], "--env-kwargs split:test: test is not defined"),
         # env settings: a typo named with what the id takes; what the zoo sets itself explained
         (
             ["train", "--env", ENV_ID, *TINY, "--env-kwargs", "obs_typ:'state'"],
@@ -243,6 +263,17 @@ def test_bad_input_gives_one_clear_line_and_a_nonzero_exit(args, message, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("sgfd-zoo") and ": error: " in err[0] and message in err[0], err
     assert not logs.exists()
+
+
+def test_the_forms_rl_zoo3_documents_pass_the_value_check_and_are_not_run():
+    from sgfd_zoo.arguments import check_key_values
+
+    given = ["policy_kwargs:dict(net_arch=[64, 64], activation_fn=nn.ReLU)", "train_freq:(1, 'step')"]
+    given += ["learning_rate:'lin_1e-3'", "gamma:-1e-2", "normalize:True", "x:None", "y:{'a': [1, 2.5]}"]
+    check_key_values("-params", given)
+    # names are looked up, never called: a value that would run code when evaluated is still only read
+    with pytest.raises(ZooError, match="not_a_name is not defined"):
+        check_key_values("-params", ["x:print('ran')", "y:not_a_name"])
 
 
 def test_train_help_is_one_usage_block_of_the_zoos_algorithms_and_loads_no_training_stack():
