@@ -10,6 +10,7 @@ from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 
 import pytest
+import yaml
 
 from sb3_sgfd.sgfd.settings import SGFDSettings
 
@@ -156,3 +157,14 @@ def test_the_sites_front_page_shows_the_readmes_intro() -> None:
     assert first in page and "](envs-overview.png)" in page and "](docs/" not in page
     with pytest.raises(ValueError, match=r"name must be a part of README\.md"):
         hooks.readme_part("outro", readme)
+
+
+def test_the_api_pages_headings_are_import_paths_and_their_signatures_are_formatted() -> None:
+    config = yaml.safe_load((REPO / "mkdocs.yml").read_text())
+    (handler,) = [plugin["mkdocstrings"] for plugin in config["plugins"] if isinstance(plugin, dict)]
+    options = handler["handlers"]["python"]["options"]
+    assert options["show_root_full_path"] is True  # "sb3_sgfd.dbc.losses", not "losses"
+    assert options["separate_signature"] is True and options["line_length"] <= 100
+    # mkdocstrings wraps a signature only when Black or Ruff is installed: the docs extra brings Ruff
+    (docs_extra,) = re.findall(r"^docs = \[(.*)\]$", (REPO / "pyproject.toml").read_text(), flags=re.MULTILINE)
+    assert {'"ruff"', '"black"'} & {name.strip() for name in docs_extra.split(",")}, docs_extra
