@@ -286,6 +286,7 @@ def main(argv: list[str] | None = None) -> None:
         f"{args.steps} agent steps x {args.rounds} interleaved rounds, median steps/s (ms per agent step)"
     )
     torch.set_num_threads(1)
+    table = ["| row | ours | theirs | fast | ours / theirs | fast / theirs |", "|---|---|---|---|---|---|"]
     for name, factories in rows().items():
         if args.only and not any(word in name for word in args.only):
             continue
@@ -293,8 +294,13 @@ def main(argv: list[str] | None = None) -> None:
         cells = "   ".join(f"{k} {v:7.1f} ({1000 / v:6.1f} ms)" for k, v in medians.items())
         ratio = medians["ours"] / medians["theirs"]
         fast = medians["fast"] / medians["theirs"]
-        print(f"  {name:<56} {cells}   ours/theirs {ratio:5.2f}x   fast/theirs {fast:5.2f}x")
+        print(f"  {name:<56} {cells}   ours/theirs {ratio:5.2f}x   fast/theirs {fast:5.2f}x", flush=True)
+        steps_per_second = " | ".join(f"{medians[k]:.1f}" for k in ("ours", "theirs", "fast"))
+        table.append(f"| {name} | {steps_per_second} | {ratio:.2f}x | {fast:.2f}x |")
+    print("\nsteps/s, as a table:\n", *table, sep="\n")
 
 
 if __name__ == "__main__":
-    main()
+    from recording import run_recorded  # the bench's --record FILE
+
+    run_recorded(main, __file__)
