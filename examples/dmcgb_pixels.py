@@ -42,7 +42,8 @@ ALGOS = {
     "dbc": (DBC, dict()),
     "drq": (EncoderSAC, dict(augmentation_views=2)),  # SAC with two random-shift views (DrQ), no objective
 }
-# --cpu-size: what it sets, unless given explicitly
+# The run's size: the default (a GPU's run), or --cpu-size (minutes on a CPU); a flag given explicitly wins.
+DEFAULT_SIZE = dict(steps=10_000, batch_size=128, image_size=84, render="benchmark", eval_episodes=5)
 CPU_SIZE = dict(steps=600, batch_size=32, image_size=64, render="fast", eval_episodes=1)
 
 
@@ -92,8 +93,7 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
     parser.add_argument("--progress", type=float, default=progress.INTERVAL, help="seconds between progress lines")
     parser.add_argument("--record", default=None, help="write the run's command, machine, times and returns (json)")
     args = parser.parse_args(argv)
-    defaults = dict(steps=10_000, batch_size=128, image_size=84, render="benchmark", eval_episodes=5)
-    for key, value in (CPU_SIZE if args.cpu_size else defaults).items():
+    for key, value in (CPU_SIZE if args.cpu_size else DEFAULT_SIZE).items():
         if getattr(args, key) is None:
             setattr(args, key, value)
     for flag in ("steps", "batch_size", "image_size", "eval_episodes", "threads"):
