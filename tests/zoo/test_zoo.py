@@ -1,7 +1,9 @@
 """The sgfd-zoo command: train, evaluate, plot, resume and optimize through the console script."""
 
 import csv
+import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -458,13 +460,31 @@ def test_optimize_shares_a_study_through_a_journal_file(tmp_path):
 @pytest.mark.slow
 @pytest.mark.ray
 def test_the_quick_main_job_trains_both_evaluates_and_plots(tmp_path):
-    result = zoo("quick", "-f", str(tmp_path), "-n", "600", "--eval-episodes", "1")
+    record = tmp_path.parent / "quick.json"
+    result = zoo("quick", "-f", str(tmp_path), "-n", "600", "--eval-episodes", "1", "--record", str(record))
     assert "sweep: 4 trained, 0 already finished, 0 failed" in result.stdout  # two seeds by default
+    # what it runs, said first; which figures are final and what it wrote (with sizes), said last
+    assert result.stdout.startswith("quick: sgfd_sac and sac on SGFD/MT-walker-walk-v0, seeds 0 1, 600 steps per run")
+    assert "quick: SGFD's classifier starts at step 120" in result.stdout
+    assert "quick: the tables above are the final figures: each run's final model evaluated on 1 episodes" in (
+        result.stdout
+    )
+    assert re.search(r"quick: wrote [\d.]+ [kMG]?B into ", result.stdout)
+    assert re.search(r"and its checkpoints \([\d.]+ [kMG]?B, of which replay buffers [\d.]+ [kMG]?B\)", result.stdout)
+    # each run's log says the settings it used where the configuration's printed ones differ
+    (sgfd_log,) = (tmp_path / "sgfd_sac").glob("*_1.log")
+    assert "this run's settings where they differ from those above: classifier_start 120, n_timesteps 600" in (
+        sgfd_log.read_text()
+    )
+    saved = json.loads(record.read_text())
+    assert saved["command"].startswith("sgfd-zoo quick -f ") and saved["settings"]["classifier_start"] == 120
+    assert saved["results"] == (tmp_path / "results.md").read_text()
+    assert saved["aggregate"] == (tmp_path / "aggregate.md").read_text()
     # Progress while it runs (a log: the block at the end), and no Ray noise.
     assert "0 running, 0 waiting, 4 finished, 0 failed" in result.stdout
     # each run's end, with its latest evaluation returns
     finished = [line for line in result.stdout.splitlines() if "] finished sgfd_sac on" in line]
-    assert len(finished) == 2 and all("extrapolation " in line for line in finished)
+    assert len(finished) == 2 and all(": last evaluation during training train " in line for line in finished)
     assert "Ray" not in result.stdout + result.stderr
     # The aggregate statistics over the two seeds, with intervals, and their figures.
     assert "# interpolation: normalised score" in result.stdout and "P(SGFD > algo)" in result.stdout
