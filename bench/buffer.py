@@ -125,22 +125,23 @@ def main() -> None:
         f"transitions, {n_steps * n_envs} stored (ring wrapped), episodes of 400-600 steps, "
         f"filled in {fill_seconds:.0f} s"
     )
-    print(
-        f"{'buffer':<22}{'bytes/transition':>18}{'GB at 500k':>12}{'median sample(' + str(args.batch_size) + ')':>22}"
-    )
+    print(f"\n| buffer | bytes per transition | GB at 500k | median sample({args.batch_size}) |\n|---|---|---|---|")
     for name, buffer, seconds in (
         ("plain", plain, plain_time),
         (f"frame_stack={n_stack}", framed, framed_time),
     ):
         per_transition = buffer.storage_nbytes() / capacity
         print(
-            f"{name:<22}{per_transition:>18,.0f}{per_transition * PAPER_TRANSITIONS / 1e9:>12.2f}"
-            f"{seconds * 1e3:>19.2f} ms"
+            f"| {name} | {per_transition:,.0f} | {per_transition * PAPER_TRANSITIONS / 1e9:.2f} | "
+            f"{seconds * 1e3:.2f} ms |"
         )
     memory_ratio = plain.storage_nbytes() / framed.storage_nbytes()
     time_ratio = framed_time / plain_time
-    print(f"memory plain / frame_stack: {memory_ratio:.2f}x; sample time frame_stack / plain: {time_ratio:.2f}x")
+    print("\n| memory, plain / frame_stack | sample time, frame_stack / plain |\n|---|---|")
+    print(f"| {memory_ratio:.2f}x | {time_ratio:.2f}x |")
 
 
 if __name__ == "__main__":
-    main()
+    from recording import run_recorded  # the bench's --record FILE
+
+    run_recorded(main, __file__)

@@ -168,8 +168,8 @@ def decorrelation_table(cases: list[Case]) -> None:
     # Raw states are not squashed; Pearson is scale-free, so only the RFF input changes.
     rows.append(["z x 10 (raw-state scale)", *evaluate(cases, saliency, scale=10.0)])
     rows.append(["z x 10, feature_std None", *evaluate(cases, saliency, scale=10.0, feature_std=None)])
-    header = ["setting", "|r| before", "|r| after", "reduction mean (min)", "ESS/n mean (min)", "loss after/before"]
-    print_table(header, rows)
+    head = ["setting", r"\|r\| before", r"\|r\| after", "reduction mean (min)", "ESS/n mean (min)", "loss after/before"]
+    print_table(head, rows)
 
 
 def saliency_table(cases: list[Case], d: int) -> None:
@@ -264,7 +264,7 @@ def state_table(env_id: str, steps_per_domain: int = 1000) -> None:
             ]
         )
     print(f"\n## {env_id}: {len(z_all) // N_BATCH} batches of real states, d = {z_all.shape[1]}\n")
-    print_table(["setting", "|r| before", "reduction mean (worst)", "ESS/n mean (worst)"], rows)
+    print_table(["setting", r"\|r\| before", "reduction mean (worst)", "ESS/n mean (worst)"], rows)
 
 
 # (label, reading, solver settings): the paper reading from its default towards uniform weights, then the
@@ -335,7 +335,7 @@ def strength_rows(batches: list[tuple[Tensor, Tensor, list[Tensor], Callable[[Te
     return rows
 
 
-STRENGTH_HEADER = ["reading, setting", "|r| cut mean (worst)", "ESS/n mean (min)", "largest weight"]
+STRENGTH_HEADER = ["reading, setting", r"\|r\| cut mean (worst)", "ESS/n mean (min)", "largest weight"]
 
 
 def strength_table(cases: list[Case]) -> None:
@@ -491,4 +491,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from recording import run_recorded  # the bench's --record FILE
+
+    run_recorded(main, __file__)

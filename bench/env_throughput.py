@@ -438,6 +438,8 @@ def main(argv: list[str] | None = None) -> None:
         f"{args.steps} agent steps x {args.rounds} interleaved rounds, steps/s over the timed steps (ms per agent step)"
     )
     torch.set_num_threads(1)
+    table = ["| row | ours | theirs | fast | ours / theirs | fast / theirs | ours / undistracted |"]
+    table.append("|---|---|---|---|---|---|---|")
     for name, factories in rows().items():
         if args.only and not any(word in name for word in args.only):
             continue
@@ -453,11 +455,16 @@ def main(argv: list[str] | None = None) -> None:
         print(
             f"  {name:<56} {cells}   ours/theirs {ratio(rates, 'ours', 'theirs')}   fast/theirs "
             f"{ratio(rates, 'fast', 'theirs')}   ours/undistracted {ratio(rates, 'undistracted', 'ours')}{transfers}"
-            + (f"   uncached/undistracted {ratio(rates, 'undistracted', 'uncached')}" if "uncached" in rates else "")
+            + (f"   uncached/undistracted {ratio(rates, 'undistracted', 'uncached')}" if "uncached" in rates else ""),
+            flush=True,
         )
+        steps_per_second = " | ".join(f"{rates[k]:.1f}" if k in rates else "-" for k in ("ours", "theirs", "fast"))
+        ratios = " | ".join(ratio(rates, *pair).strip() for pair in (("ours", "theirs"), ("fast", "theirs")))
+        table.append(f"| {name} | {steps_per_second} | {ratios} | {ratio(rates, 'undistracted', 'ours').strip()} |")
         for stepper in steppers.values():
             if isinstance(stepper, GymStepper):
                 stepper.close()
+    print("\nsteps/s, as a table:\n", *table, sep="\n")
     if args.every_split:
         print_every_split(args.steps, args.rounds, args.warmup, args.only)
     if args.memory:
@@ -465,4 +472,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from recording import run_recorded  # the bench's --record FILE
+
+    run_recorded(main, __file__)

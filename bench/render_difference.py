@@ -50,14 +50,17 @@ def main(argv: list[str] | None = None) -> None:
         f'render="fast" against the default render, DCS/ ids undistracted, {args.size}x{args.size}, '
         f"after {args.steps} steps, seeds 0-{args.episodes - 1}: share of pixels off by more than {args.levels} levels"
     )
+    print("\n| task | pixels off | per episode |\n|---|---|---|")
     for domain, task in sorted(dcs.TASKS):
         shares = []
         for seed in range(args.episodes):
             default, fast = observations_after(f"DCS/{domain}-{task}-v0", seed, args.steps, args.size)
             shares.append(benchmark_methods.disagreement(fast, default, args.levels))
         episodes = ", ".join(f"{share:.1%}" for share in shares)
-        print(f"  {domain + '-' + task:<18} {np.mean(shares):6.1%}   (per episode: {episodes})")
+        print(f"| {domain}-{task} | {np.mean(shares):.1%} | {episodes} |", flush=True)
 
 
 if __name__ == "__main__":
-    main()
+    from recording import run_recorded  # the bench's --record FILE
+
+    run_recorded(main, __file__)

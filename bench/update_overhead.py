@@ -280,4 +280,6 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from recording import run_recorded  # the bench's --record FILE
+
+    run_recorded(main, __file__)

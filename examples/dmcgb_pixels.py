@@ -8,9 +8,11 @@ the colour sets and videos are the built-in stand-ins (see the docs' Benchmarks 
 
 The default agent is TED (a classifier of temporal pairs trained with the encoder, on random-shift
 augmentation); ``--algo`` picks another. The networks are sized for a CPU (256-wide heads, the paper's 4-layer
-encoder): pixel training is slow on a CPU, and a GPU is picked when there is one.
+encoder): pixel training is slow on a CPU, and a GPU is picked when there is one. ``--cpu-size`` is a run that
+finishes in minutes on a laptop's CPU: 600 steps at 64x64 pixels, batch 32, fast rendering, one episode per split.
 
     python examples/dmcgb_pixels.py                                       # TED, walker-walk, 10k steps
+    python examples/dmcgb_pixels.py --cpu-size                            # minutes on a CPU, end to end
     python examples/dmcgb_pixels.py --algo sgqn --eval-splits color_hard video_hard
     python examples/dmcgb_pixels.py --data-dir dmcontrol-generalization-benchmark/src/env/data
 """
@@ -18,14 +20,19 @@ encoder): pixel training is slow on a CPU, and a GPU is picked when there is one
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import torch
-from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv, VecFrameStack, VecTransposeImage
 
 import sgfd_envs  # registers the DMCGB/* ids
 from sb3_sgfd import AMBS, DBC, SGQN, TED, EncoderSAC
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+# The examples' progress lines and records, beside this file.
+import progress
 
 FRAME_STACK = 3
 ALGOS = {
@@ -35,6 +42,9 @@ ALGOS = {
     "dbc": (DBC, dict()),
     "drq": (EncoderSAC, dict(augmentation_views=2)),  # SAC with two random-shift views (DrQ), no objective
 }
+# The run's size: the default (a GPU's run), or --cpu-size (minutes on a CPU); a flag given explicitly wins.
+DEFAULT_SIZE = dict(steps=10_000, batch_size=128, image_size=84, render="benchmark", eval_episodes=5)
+CPU_SIZE = dict(steps=600, batch_size=32, image_size=64, render="fast", eval_episodes=1)
 
 
 def make_env(env_id: str, split: str, seed: int, **env_kwargs) -> VecEnv:
@@ -53,35 +63,52 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="DMCGB/walker-walk-v0", help="a DMCGB/ id (default: %(default)s)")
     parser.add_argument("--algo", choices=tuple(ALGOS), default="ted")
-    parser.add_argument("--steps", type=int, default=10_000, help="agent steps (default: %(default)s)")
+    parser.add_argument("--steps", type=int, default=None, help="agent steps (default: 10000)")
     parser.add_argument(
         "--eval-splits", nargs="+", default=["color_hard", "video_easy"], help="test modes (%(default)s)"
     )
-    parser.add_argument("--eval-episodes", type=int, default=5, help="episodes per split (%(default)s)")
-    parser.add_argument("--batch-size", type=int, default=128)
+    parser.add_argument("--eval-episodes", type=int, default=None, help="episodes per split (default: 5)")
+    parser.add_argument("--batch-size", type=int, default=None, help="(default: 128)")
+    parser.add_argument("--image-size", type=int, default=None, help="height and width of the pixels (default: 84)")
     parser.add_argument("--buffer-size", type=int, default=100_000, help="transitions kept (%(default)s)")
     parser.add_argument("--data-dir", default=None, help="DMC-GB's src/env/data (default: the built-in stand-ins)")
     parser.add_argument(
         "--render",
         choices=("benchmark", "fast"),
-        default="benchmark",
-        help="benchmark: DMC-GB's pictures (shadows, reflections, multisampling); fast: none of them, several times "
-        "faster on a CPU, not the benchmark's pixels",
+        default=None,
+        help="benchmark (default): DMC-GB's pictures (shadows, reflections, multisampling); fast: none of them, "
+        "several times faster on a CPU, not the benchmark's pixels",
     )
+    parser.add_argument(
+        "--cpu-size",
+        action="store_true",
+        help="a run of minutes on a CPU: "
+        + ", ".join(f"--{key.replace('_', '-')} {value}" for key, value in CPU_SIZE.items())
+        + " (each unless given)",
+    )
+    parser.add_argument("--threads", type=int, default=1, help="torch's CPU threads (%(default)s)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--save", default=None, help="save the model to this path (.zip)")
     parser.add_argument("--verbose", type=int, default=1, help="1: SB3's table every 4 episodes, 0: quiet")
+    parser.add_argument("--progress", type=float, default=progress.INTERVAL, help="seconds between progress lines")
+    parser.add_argument("--record", default=None, help="write the run's command, machine, times and returns (json)")
     args = parser.parse_args(argv)
-    if args.steps <= 0:
-        parser.error(f"--steps must be positive, got {args.steps}")
+    for key, value in (CPU_SIZE if args.cpu_size else DEFAULT_SIZE).items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
+    for flag in ("steps", "batch_size", "image_size", "eval_episodes", "threads"):
+        if getattr(args, flag) <= 0:
+            parser.error(f"--{flag.replace('_', '-')} must be positive, got {getattr(args, flag)}")
     allowed = sgfd_envs.test_splits(args.env)
     for split in args.eval_splits:
         if split not in allowed:
             parser.error(f"--eval-splits: {split!r} is not a test mode of {args.env}; expected one of {allowed}")
-    env_kwargs: dict = dict(render=args.render)
+    env_kwargs: dict = dict(render=args.render, image_size=args.image_size)
     if args.data_dir is not None:
         env_kwargs["data_dir"] = args.data_dir
+    torch.set_num_threads(args.threads)
 
+    machine, began = progress.machine(), time.perf_counter()
     algo_class, algo_kwargs = ALGOS[args.algo]
     model = algo_class(
         "CnnPolicy",
@@ -95,9 +122,14 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
         verbose=args.verbose,
         **algo_kwargs,
     )
-    print(f"{args.algo} on {args.env} (train), device {model.device}, torch threads {torch.get_num_threads()}")
+    print(
+        f"{args.algo} on {args.env} (train), {args.steps} steps, batch {args.batch_size}, "
+        f"{args.image_size}x{args.image_size} pixels ({args.render} rendering), device {model.device}, "
+        f"torch threads {torch.get_num_threads()}",
+        flush=True,
+    )
     start, cpu_start = time.perf_counter(), time.process_time()
-    model.learn(args.steps)
+    model.learn(args.steps, callback=progress.TrainingProgress(f"train {args.algo}", args.progress))
     seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
     # Wall time depends on what else the machine runs; the process's CPU time (over all its threads) much less.
     print(
@@ -107,13 +139,33 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
     if args.save:
         model.save(args.save)
 
+    splits = ["train", *args.eval_splits]
+    print(f"evaluating on {', '.join(splits)}: {args.eval_episodes} episode(s) each", flush=True)
+    eval_start = time.perf_counter()
     returns = {}
-    for split in ["train", *args.eval_splits]:
+    for split in splits:
         env = make_env(args.env, split, args.seed + 1000, **env_kwargs)
-        mean, std = evaluate_policy(model, env, n_eval_episodes=args.eval_episodes)
+        returns[split] = progress.mean_and_std(
+            progress.evaluate(model, env, args.eval_episodes, f"evaluate {split}", args.progress)
+        )
         env.close()
-        returns[split] = (float(mean), float(std))
+    eval_seconds = time.perf_counter() - eval_start
+    print(f"evaluated in {eval_seconds:.0f} s; the returns of the trained model:")
+    for split, (mean, std) in returns.items():
         print(f"{split:>12}: return {mean:7.1f} ± {std:.1f} over {args.eval_episodes} episodes")
+    if args.record:
+        figures = dict(
+            wall_seconds=round(time.perf_counter() - began, 1),
+            train_seconds=round(seconds, 1),
+            ms_per_step=round(1000 * seconds / args.steps),
+            cpu_ms_per_step=round(1000 * cpu_seconds / args.steps),
+            eval_seconds=round(eval_seconds, 1),
+            eval_episodes=args.eval_episodes,
+            returns={split: [round(mean, 1), round(std, 1)] for split, (mean, std) in returns.items()},
+        )
+        progress.write_record(
+            args.record, Path(__file__).name, list(sys.argv[1:] if argv is None else argv), figures, machine
+        )
     return returns
 
 

@@ -15,14 +15,19 @@ not the same; its values live in ``sgfd_zoo/hyperparams/quick/``).
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import torch
 from stable_baselines3 import SAC
-from stable_baselines3.common.evaluation import evaluate_policy
 
 import sgfd_envs  # registers the SGFD/* ids
 from sb3_sgfd import SGFD_SAC, MlpPolicy
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+# The examples' progress lines and records, beside this file.
+import progress
 
 OBSERVATION = dict(obs_type="state", observe_parameter=True)  # the same on the training and the test splits
 
@@ -62,20 +67,22 @@ def make_model(algo: str, env_id: str, seed: int, steps: int, classifier_start: 
     )
 
 
-def evaluate(model: SAC, env_id: str, splits: list[str], episodes: int, seed: int) -> dict[str, tuple[float, float]]:
-    """Mean and std of the episode return on each split.
+def evaluate(
+    model: SAC, env_id: str, splits: list[str], episodes: int, seed: int, label: str = "evaluate"
+) -> dict[str, tuple[float, float]]:
+    """Mean and std of the episode return on each split, with a line per episode.
 
     :param model: a trained model
     :param env_id: the id it trained on
     :param splits: splits of ``env_id`` (``"train"``: the training domains)
     :param episodes: episodes per split
     :param seed: seed of the evaluation environments
+    :param label: the start of each progress line
     """
     returns = {}
     for split in splits:
         env = sgfd_envs.make_domain_vec_env(env_id, split=split, seed=seed + 1000, **OBSERVATION)
-        mean, std = evaluate_policy(model, env, n_eval_episodes=episodes)
-        returns[split] = (float(mean), float(std))
+        returns[split] = progress.mean_and_std(progress.evaluate(model, env, episodes, f"{label} {split}"))
         env.close()
     return returns
 
@@ -91,6 +98,8 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--save", default=None, help="save the model to this path (.zip)")
     parser.add_argument("--verbose", type=int, default=1, help="1: SB3's table every 4 episodes, 0: quiet")
+    parser.add_argument("--progress", type=float, default=progress.INTERVAL, help="seconds between progress lines")
+    parser.add_argument("--record", default=None, help="write the run's command, machine, times and returns (json)")
     args = parser.parse_args(argv)
     if args.steps <= 0:
         parser.error(f"--steps must be positive, got {args.steps}")
@@ -101,9 +110,11 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
     torch.set_num_threads(1)  # small networks: one thread is as fast, and leaves the other cores free
 
     classifier_start = args.steps // 5 if args.classifier_start is None else args.classifier_start
+    machine, began = progress.machine(), time.perf_counter()
     model = make_model(args.algo, args.env, args.seed, args.steps, classifier_start, args.verbose)
     start, cpu_start = time.perf_counter(), time.process_time()
-    model.learn(args.steps)
+    run = f"{args.algo} {args.env.split('/')[-1]} seed {args.seed}"
+    model.learn(args.steps, callback=progress.TrainingProgress(f"train {run}", args.progress))
     seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
     # Wall time depends on what else the machine runs; the process's CPU time much less.
     print(
@@ -113,9 +124,25 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
     if args.save:
         model.save(args.save)
 
-    returns = evaluate(model, args.env, splits, args.eval_episodes, args.seed)
+    eval_start = time.perf_counter()
+    returns = evaluate(model, args.env, splits, args.eval_episodes, args.seed, f"evaluate {run}")
+    eval_seconds = time.perf_counter() - eval_start
+    print(f"evaluated in {eval_seconds:.0f} s; the returns of the trained model:")
     for split, (mean, std) in returns.items():
         print(f"{split:>14}: return {mean:7.1f} ± {std:.1f} over {args.eval_episodes} episodes")
+    if args.record:
+        figures = dict(
+            wall_seconds=round(time.perf_counter() - began, 1),
+            train_seconds=round(seconds, 1),
+            ms_per_step=round(1000 * seconds / args.steps, 1),
+            cpu_ms_per_step=round(1000 * cpu_seconds / args.steps, 1),
+            eval_seconds=round(eval_seconds, 1),
+            eval_episodes=args.eval_episodes,
+            returns={split: [round(mean, 1), round(std, 1)] for split, (mean, std) in returns.items()},
+        )
+        progress.write_record(
+            args.record, Path(__file__).name, list(sys.argv[1:] if argv is None else argv), figures, machine
+        )
     return returns
 
 

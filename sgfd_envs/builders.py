@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import functools
 import inspect
+import os
+import sys
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -71,14 +73,27 @@ class StandInWarning(UserWarning):
 
 
 _WARNED: set[str] = set()
+# The packages between a user's line and a builder's warning (gym.make, make_domain_vec_env, SB3's vector envs).
+_LIBRARIES = ("sgfd_envs", "gymnasium", "stable_baselines3")
+
+
+def _user_stacklevel() -> int:
+    """The ``stacklevel`` that makes a warning raised by the caller of this function name the user's line: the
+    first frame outside the packages of ``_LIBRARIES`` (those imported)."""
+    loaded = [sys.modules[name] for name in _LIBRARIES if name in sys.modules]
+    folders = tuple(f"{Path(str(module.__file__)).resolve().parent}{os.sep}" for module in loaded)
+    frame, level = sys._getframe(1), 1
+    while frame.f_back is not None and str(Path(frame.f_code.co_filename).resolve()).startswith(folders):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def _stand_in(env_id: str, split: str, **env_kwargs: Any) -> str | None:
-    """:func:`sgfd_envs.registry.stand_in`, warned once per process per kind of stand-in."""
+    """:func:`sgfd_envs.registry.stand_in`, warned once per process per kind of stand-in, at the user's line."""
     what = stand_in(env_id, split, **env_kwargs)
     if what is not None and what not in _WARNED:
         _WARNED.add(what)
-        warnings.warn(f"{env_id} split={split!r}: {what}", StandInWarning, stacklevel=3)
+        warnings.warn(f"{env_id} split={split!r}: {what}", StandInWarning, stacklevel=_user_stacklevel())
     return what
 
 

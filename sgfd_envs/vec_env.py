@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import difflib
 import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
-from sgfd_envs.registry import n_domains, task_entry
+from sgfd_envs.registry import ENV_IDS, n_domains
 from sgfd_envs.state import ResumableState
 
 if TYPE_CHECKING:
@@ -22,7 +23,8 @@ def _stable_baselines3() -> Any:
         from stable_baselines3.common import vec_env
     except ModuleNotFoundError as error:
         raise ModuleNotFoundError(
-            f"make_domain_vec_env needs stable-baselines3 ({error}): pip install sb3-sgfd"
+            f"make_domain_vec_env needs stable-baselines3 ({error}): pip install stable-baselines3, or the agents from "
+            "the clone's root: pip install -e ./sgfd_envs -e . -c constraints.txt"
         ) from None
     return vec_env
 
@@ -58,7 +60,10 @@ def make_domain_vec_env(
     """
     default_vec_env_cls = _stable_baselines3().DummyVecEnv
 
-    task_entry(env_id)
+    if env_id not in ENV_IDS:
+        close = difflib.get_close_matches(str(env_id), ENV_IDS, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        raise ValueError(f"env_id must be one of {', '.join(ENV_IDS)}, got {env_id!r}{hint}")
     if "domain" in env_kwargs:
         raise ValueError("make_domain_vec_env sets domain= itself (sub-env i gets domain i % n_domains)")
     count = n_domains(env_id, split, **env_kwargs)

@@ -3,11 +3,15 @@ them too: the env registry is imported only to check an env id)."""
 
 from __future__ import annotations
 
+import ast
+import builtins
 import difflib
 import os
 import shlex
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
+from types import ModuleType
+from typing import Any
 
 
 class ZooError(Exception):
@@ -140,6 +144,21 @@ def flag_value(argv: Sequence[str], flag: str) -> str | None:
     return value
 
 
+def flag_items(argv: Sequence[str], flag: str) -> list[str]:
+    """The items ``argv`` gives a flag that takes several (``flag a b c``, up to the next option), every time it
+    is given."""
+    items: list[str] = []
+    taking = False
+    for arg in argv:
+        if arg == flag:
+            taking = True
+        elif taking and arg.startswith("-") and not arg[1:2].isdigit():
+            taking = False
+        elif taking:
+            items.append(arg)
+    return items
+
+
 def without_flags(argv: Sequence[str], switches: Iterable[str] = (), options: Iterable[str] = ()) -> list[str]:
     """``argv`` without the flags ``switches`` (no value) and ``options`` (with their value)."""
     switches, options = set(switches), set(options)
@@ -166,3 +185,84 @@ def train_command(argv: Sequence[str], run_id: int | None, resume: bool) -> str:
     flags = without_flags(argv, switches=["--resume"], options=["--run-id"])
     flags += [] if run_id is None else ["--run-id", str(run_id)]
     return shlex.join(["sgfd-zoo", "train", *flags, *(["--resume"] if resume else [])])
+
+
+#: what a value of ``KEY:VALUE`` may be, as the refusals say it
+VALUE_FORMS = "a number, True/False/None, a quoted string, a list [...] or dict(...)"
+EXAMPLE_ITEMS = {"--env-kwargs": "image_size:64", "--eval-env-kwargs": "image_size:64"}
+
+
+def _dotted_name(node: ast.AST) -> list[str] | None:
+    """``nn.ReLU`` as ``["nn", "ReLU"]``; None when ``node`` is not a (dotted) name."""
+    parts: list[str] = []
+    while isinstance(node, ast.Attribute):
+        parts.insert(0, node.attr)
+        node = node.value
+    return [node.id, *parts] if isinstance(node, ast.Name) else None
+
+
+def _dotted_names(node: ast.AST) -> Iterator[list[str]]:
+    """Every (dotted) name of an expression, outermost first: ``dict(activation_fn=nn.ReLU)``: dict, nn.ReLU."""
+    parts = _dotted_name(node)
+    if parts is not None:
+        yield parts
+        return
+    for child in ast.iter_child_nodes(node):
+        yield from _dotted_names(child)
+
+
+def _undefined_name(tree: ast.AST, namespace: Mapping[str, Any] | None) -> str | None:
+    """The first (dotted) name in ``tree`` that neither Python's builtins nor ``namespace`` define, found by
+    looking names up (modules' and classes' attributes only), never by running the value."""
+    for head, *attributes in _dotted_names(tree):
+        if hasattr(builtins, head):
+            found: Any = getattr(builtins, head)
+        else:
+            if namespace is None:
+                import rl_zoo3.utils  # the namespace rl-zoo3 evaluates KEY:VALUE in (th, nn, spaces, ...)
+
+                namespace = vars(rl_zoo3.utils)
+            if head not in namespace:
+                return head
+            found = namespace[head]
+        for depth, attribute in enumerate(attributes, start=1):
+            if not isinstance(found, (ModuleType, type)):
+                break  # an instance's attribute may run code to be found: left to rl-zoo3
+            if not hasattr(found, attribute):
+                return ".".join([head, *attributes[:depth]])
+            found = getattr(found, attribute)
+    return None
+
+
+def check_key_values(flag: str, items: Sequence[str] | None, namespace: Mapping[str, Any] | None = None) -> None:
+    """A ZooError naming the flag and the key of the first of ``items`` that rl-zoo3 could not read, before rl-zoo3
+    evaluates them as Python (its ``StoreDict``): an item without ``KEY:``, a value that is not Python
+    (``learning_rate:1e-3x``), or one naming what is not defined (``obs_type:pixels``, where a string needs quotes).
+    The value is parsed and its names are looked up, never run.
+
+    :param flag: the option, e.g. ``--env-kwargs``
+    :param items: its ``KEY:VALUE`` items as given
+    :param namespace: where names are looked up beside Python's builtins (default: rl-zoo3's, where it evaluates)
+    """
+    for item in items or ():
+        key, colon, text = item.partition(":")
+        if not colon or not key:
+            example = EXAMPLE_ITEMS.get(flag, "batch_size:64")
+            raise ZooError(f"{flag} {item!r}: expected KEY:VALUE, e.g. {flag} {example}")
+        if not text.strip():
+            raise ZooError(f"{flag} {key}: no value after the colon; expected {VALUE_FORMS}")
+        try:
+            tree = ast.parse(text.lstrip(" \t"), mode="eval")
+        except SyntaxError as error:
+            raise ZooError(f"{flag} {key}:{text}: not a Python value ({error.msg}); expected {VALUE_FORMS}") from None
+        undefined = _undefined_name(tree, namespace)
+        if undefined is None:
+            continue
+        if "." in undefined or isinstance(tree.body, (ast.Call, ast.List, ast.Tuple, ast.Dict, ast.Set)):
+            raise ZooError(f"{flag} {key}:{text}: {undefined} is not defined; expected {VALUE_FORMS}")
+        # a bare word: a string whose quotes the shell took away
+        quoted = f'{key}:"{text!r}"' if not set(text) & set('"$`\\!') else shlex.quote(f"{key}:{text!r}")
+        raise ZooError(
+            f"{flag} {key}:{text}: {undefined} is not defined; a string needs quotes that reach Python, "
+            f"e.g. {flag} {quoted}"
+        )

@@ -161,8 +161,8 @@ def run(command: str, argv: Sequence[str]) -> int:
         if missing not in ZOO_EXTRA_MODULES:
             raise
         print(
-            f"sgfd-zoo {command}: error: it needs {missing}, which the zoo's install brings: "
-            "pip install 'sb3-sgfd[zoo]' (from a clone: pip install -e ./sgfd_envs -e '.[zoo]')",
+            f"sgfd-zoo {command}: error: it needs {missing}, which the zoo's install brings: from the clone's root, "
+            "pip install -e ./sgfd_envs -e '.[zoo]' -c constraints.txt",
             file=sys.stderr,
         )
         return 2

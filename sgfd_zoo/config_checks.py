@@ -335,3 +335,22 @@ def check_algo_kwargs(algo: str, hyperparams: dict[str, Any]) -> None:
     """Refuse yaml keys that neither rl-zoo3 nor the algorithm's constructor knows, naming close matches."""
     known = constructor_arguments(ALGOS[algo]) | ZOO_KEYS
     check_keywords(algo, sorted(hyperparams), known, "unknown hyperparameter(s) for {where}: {keys}")
+
+
+def changed_settings(printed: dict[str, Any], final: dict[str, Any], n_timesteps: int) -> str | None:
+    """One line naming the settings a run uses that differ from those rl-zoo3 printed (the yaml's, with
+    ``-params``): what the zoo set after it (``--classifier-start``, an ablation's switch, merged ``--env-kwargs``)
+    and ``-n``. None when there are none.
+
+    :param printed: the hyperparameters rl-zoo3 printed
+    :param final: those the run uses
+    :param n_timesteps: ``-n`` (0 or less: the yaml's)
+    """
+    changed = {key: value for key, value in final.items() if key not in printed or printed[key] != value}
+    if n_timesteps > 0 and final.get("n_timesteps") != n_timesteps:
+        changed["n_timesteps"] = n_timesteps
+    if not changed:
+        return None
+    return "this run's settings where they differ from those above: " + ", ".join(
+        f"{key} {value!r}" for key, value in sorted(changed.items())
+    )

@@ -26,6 +26,7 @@ from sgfd_zoo.arguments import TrainingStopped, ZooError, train_command
 from sgfd_zoo.callbacks import CSVLogCallback, MultiSplitEvalCallback, ProgressCallback
 from sgfd_zoo.config_checks import (
     KWARGS_KEYS,
+    changed_settings,
     check_algo_kwargs,
     check_algorithm_values,
     check_env_kwargs,
@@ -158,6 +159,7 @@ class SGFDExperimentManager(ExperimentManager):
         # rl-zoo3 while it reads the yaml.
         given, self.env_kwargs = self.env_kwargs, {}
         hyperparams, saved = super().read_hyperparameters()
+        printed = dict(saved)  # rl-zoo3 printed these (the yaml's and -params); what changes below is said below
         if given or "env_kwargs" in hyperparams:
             hyperparams["env_kwargs"] = saved["env_kwargs"] = merged_env_kwargs(hyperparams.get("env_kwargs"), given)
         self.env_kwargs = dict(hyperparams.get("env_kwargs") or {})
@@ -170,6 +172,8 @@ class SGFDExperimentManager(ExperimentManager):
                 overrides["classifier_start"] = self.classifier_start
             hyperparams.update(overrides)
             saved.update(overrides)
+        if (changed := changed_settings(printed, saved, self.n_timesteps)) is not None:
+            print(changed)
         return hyperparams, saved
 
     def _preprocess_hyperparams(self, hyperparams: dict[str, Any]):

@@ -22,7 +22,9 @@ from sgfd_zoo.arguments import (
     ZooError,
     check_at_least,
     check_env_id,
+    check_key_values,
     check_log_folder,
+    flag_items,
     flag_value,
     has_flag,
     without_flags,
@@ -121,6 +123,9 @@ def check_run_arguments(args: argparse.Namespace) -> None:
     check_at_least("--classifier-start", args.classifier_start, 0)
     check_at_least("--run-id", args.run_id, 0)
     check_log_folder("-f", Path(args.log_folder))
+    check_key_values("-params", args.hyperparams)
+    check_key_values("--env-kwargs", args.env_kwargs)
+    check_key_values("--eval-env-kwargs", args.eval_env_kwargs)
 
 
 def train(
@@ -197,8 +202,9 @@ def enjoy(argv: Sequence[str]) -> int:
     from sgfd_zoo.experiment import register_algorithms
     from sgfd_zoo.runs.folders import select_run
 
-    register_algorithms()
     argv = list(argv)
+    check_key_values("--env-kwargs", flag_items(argv, "--env-kwargs"))
+    register_algorithms()
     if not (has_flag(argv, "-f") or has_flag(argv, "--folder")):
         argv += ["-f", "logs"]
     folder = flag_value(argv, "-f") or flag_value(argv, "--folder") or "logs"

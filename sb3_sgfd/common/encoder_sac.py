@@ -37,6 +37,7 @@ from sb3_sgfd.common.augmentation import random_shift
 from sb3_sgfd.common.buffer_setup import N_STEPS_IGNORED_WARNING, DomainBufferMixin
 from sb3_sgfd.common.buffers import DomainReplayBuffer
 from sb3_sgfd.common.captured import CapturedUpdateMixin, StepPlan
+from sb3_sgfd.common.observations import warn_if_flattening_images
 from sb3_sgfd.common.policies import (
     CnnPolicy,
     EncoderMlpPolicy,
@@ -211,6 +212,7 @@ class EncoderSAC(CapturedUpdateMixin, DomainBufferMixin, SAC):
             if self._buffer_takes_n_steps():
                 warnings.filterwarnings("ignore", message=N_STEPS_IGNORED_WARNING, category=UserWarning)
             super()._setup_model()
+        warn_if_flattening_images(self.policy)
         if self.ent_coef_optimizer is not None and (self.ent_coef_lr is not None or self.ent_coef_beta != 0.9):
             lr = self.lr_schedule(1) if self.ent_coef_lr is None else self.ent_coef_lr
             self.ent_coef_optimizer = th.optim.Adam([self.log_ent_coef], lr=lr, betas=(self.ent_coef_beta, 0.999))  # type: ignore[arg-type]  # not None with the optimizer

@@ -24,6 +24,8 @@ from stable_baselines3.sac.policies import LOG_STD_MAX, LOG_STD_MIN, Actor, SACP
 from torch import nn
 from torch.distributions import Normal
 
+from sb3_sgfd.common.observations import describe_space
+
 
 class PixelEncoder(BaseFeaturesExtractor):
     """
@@ -50,7 +52,8 @@ class PixelEncoder(BaseFeaturesExtractor):
         super().__init__(observation_space, features_dim)
         if not is_image_space(observation_space, check_channels=False, normalized_image=normalized_image):
             raise ValueError(
-                f"PixelEncoder reads channel-first uint8 images in [0, 255], got {observation_space}; for states use "
+                f"PixelEncoder reads channel-first uint8 images in [0, 255], got {describe_space(observation_space)}; "
+                "for states use "
                 "MlpPolicy, for Dict observations MultiInputPolicy, and for images already scaled (floats, e.g. "
                 "after VecNormalize) pass policy_kwargs=dict(normalize_images=False)"
             )

@@ -56,6 +56,8 @@ def activity_text(report: dict[str, Any], now: float | None = None) -> str:
     learning_starts = report.get("learning_starts", 0)
     if steps < learning_starts:
         return f"warm-up to step {learning_starts} (random actions)"
+    if rate <= 0 and steps < total:
+        return "learning, pace measured at the next report"  # e.g. right after an evaluation at learning_starts
     eta = duration((total - steps) / rate) if rate > 0 and steps < total else "-"
     return f"{rate:>5.0f} steps/s  ETA {eta:>6}"
 
@@ -71,7 +73,7 @@ def progress_line(name: str, report: dict[str, Any], now: float | None = None) -
     steps, total = report["steps"], report["total"]
     line = f"{name:<44} {steps:>8}/{total:<8} {100 * steps / max(total, 1):>3.0f}%  {activity_text(report, now)}"
     evaluated = returns_text(report)
-    return f"{line}  eval: {evaluated}" if evaluated else line
+    return f"{line}  last eval: {evaluated}" if evaluated else line
 
 
 def progress_block(names: Sequence[str], reports: dict[str, dict[str, Any]], status: dict[str, str]) -> list[str]:

@@ -257,7 +257,7 @@ def _wait_for(
                 evaluated = returns_text(report)
                 view.message(
                     f"{count} finished {job}{' (resumed)' if resumed else ''}"
-                    + (f": {evaluated}" if evaluated else "")
+                    + (f": last evaluation during training {evaluated}" if evaluated else "")
                     + f" ({job.run_dir})"
                 )
             del pending[ref]

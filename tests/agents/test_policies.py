@@ -1,6 +1,8 @@
 import base64
 import json
+import warnings
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -102,3 +104,33 @@ def test_plain_sac_trains_and_reloads_with_the_sgfd_policy(tmp_path):
     assert isinstance(loaded.policy, MlpPolicy)
     assert loaded.policy.actor.features_extractor is loaded.policy.critic.features_extractor
     np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+
+
+def test_an_mlp_policy_on_images_warns_once_in_one_line_at_the_users_line():
+    import sgfd_envs
+    from sb3_sgfd import SGFD_SAC
+    from sb3_sgfd.common.observations import FlattenedImagesWarning
+
+    pixels = sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", split="train", image_size=16)
+    small = dict(buffer_size=64, policy_kwargs=dict(net_arch=[8]))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        SGFD_SAC("MlpPolicy", pixels, **small)
+        SGFD_SAC("CnnPolicy", pixels, **small)  # convolutions: no warning
+    flattened = [warning for warning in caught if issubclass(warning.category, FlattenedImagesWarning)]
+    assert len(flattened) == 1, [str(warning.message) for warning in caught]
+    message = str(flattened[0].message)
+    assert "\n" not in message and "'CnnPolicy'" in message and "Box(shape=(3, 16, 16), dtype=uint8)" in message
+    assert Path(flattened[0].filename).resolve() == Path(__file__).resolve()
+    pixels.close()
+
+
+def test_a_cnn_policy_on_states_is_refused_in_one_line():
+    import sgfd_envs
+    from sb3_sgfd import SGFD_SAC
+
+    states = sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", obs_type="state", observe_parameter=True)
+    with pytest.raises(ValueError, match=r"got Box\(shape=\(25,\), dtype=float32\); for states use MlpPolicy") as error:
+        SGFD_SAC("CnnPolicy", states, buffer_size=64)
+    assert "\n" not in str(error.value)
+    states.close()

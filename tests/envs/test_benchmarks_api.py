@@ -4,6 +4,7 @@ rewards, and a distraction that never changes the task (same seed, same physics 
 import math
 import pickle
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -337,8 +338,9 @@ def test_a_stand_in_is_named_once_flagged_in_info_and_known_without_an_env(tmp_p
     assert sgfd_envs.stand_in("DCS/walker-walk-v0", "easy", distractions=("camera",)) is None
     assert "Kinetics" in sgfd_envs.stand_in("SGFD/walker-walk-v0", "test")
     assert sgfd_envs.stand_in("SGFD/MT-walker-walk-v0", "extrapolation") is None
-    with pytest.warns(StandInWarning, match=r"DMCGB2/finger-spin-v0 split='color_hard': .* give data_dir="):
+    with pytest.warns(StandInWarning, match=r"DMCGB2/finger-spin-v0 split='color_hard': .* give data_dir=") as caught:
         first = gym.make("DMCGB2/finger-spin-v0", split="color_hard", obs_type="state")
+    assert [Path(warning.filename).name for warning in caught] == [Path(__file__).name]  # the user's line
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # once per process: the second env of that stand-in is quiet
         second = gym.make("DMCGB/walker-walk-v0", split="video_easy", obs_type="state")
@@ -348,3 +350,6 @@ def test_a_stand_in_is_named_once_flagged_in_info_and_known_without_an_env(tmp_p
         assert info["stand_in"] is flagged
         assert env.step(env.action_space.sample())[-1]["stand_in"] is flagged
         env.close()
+    with pytest.warns(StandInWarning) as caught:  # through SB3's vector env: still the line that asked for it
+        sgfd_envs.make_domain_vec_env("DCS/walker-walk-v0", split="easy", obs_type="state").close()
+    assert [Path(warning.filename).name for warning in caught] == [Path(__file__).name]

@@ -198,6 +198,11 @@ def test_helpers_reject_unknown_ids_listing_the_known_ones(helper):
         helper("walker-walk")
 
 
+def test_make_domain_vec_env_suggests_the_closest_id():
+    with pytest.raises(ValueError, match=r"got 'SGFD/MT-walker-wlk-v0' \(did you mean SGFD/MT-walker-walk-v0\?\)$"):
+        sgfd_envs.make_domain_vec_env("SGFD/MT-walker-wlk-v0")
+
+
 def test_make_domain_vec_env_gives_one_monitored_sub_env_per_domain():
     venv = sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", obs_type="state")
     try:
@@ -357,6 +362,7 @@ def test_make_domain_vec_env_without_stable_baselines3_says_how_to_install_it(mo
     monkeypatch.setitem(sys.modules, "stable_baselines3.common", None)
     monkeypatch.setitem(sys.modules, "stable_baselines3.common.vec_env", None)
     with pytest.raises(
-        ModuleNotFoundError, match=r"make_domain_vec_env needs stable-baselines3 .*: pip install sb3-sgfd"
-    ):
+        ModuleNotFoundError, match=r"make_domain_vec_env needs stable-baselines3 .*: pip install stable-baselines3, or"
+    ) as error:
         sgfd_envs.make_domain_vec_env("SGFD/MT-walker-walk-v0", obs_type="state")
+    assert "sb3-sgfd" not in str(error.value)  # a name no package index has

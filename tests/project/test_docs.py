@@ -4,12 +4,14 @@ docs/reproducing.md are the studies' exported ones, the cost of the paper's tabl
 
 from __future__ import annotations
 
+import json
 import re
 from dataclasses import fields
 from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 
 import pytest
+import yaml
 
 from sb3_sgfd.sgfd.settings import SGFDSettings
 
@@ -24,7 +26,9 @@ def markdown_tables(text: str) -> list[list[list[str]]]:
     current: list[list[str]] = []
     for line in [*text.splitlines(), ""]:
         if line.startswith("|"):
-            cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
+            cells = [
+                cell.strip() for cell in re.split(r"(?<!\\)\|", line.strip().removeprefix("|").removesuffix("|"))
+            ]  # "\|" stays in a cell
             if not all(set(cell) <= set("-: ") for cell in cells):
                 current.append(cells)
         elif current:
@@ -171,3 +175,157 @@ def test_the_sites_front_page_shows_the_readmes_intro() -> None:
     assert first in page and "](envs-overview.png)" in page and "](docs/" not in page
     with pytest.raises(ValueError, match=r"name must be a part of README\.md"):
         hooks.readme_part("outro", readme)
+
+
+def test_the_api_pages_headings_are_import_paths_and_their_signatures_are_formatted() -> None:
+    config = yaml.safe_load((REPO / "mkdocs.yml").read_text())
+    (handler,) = [plugin["mkdocstrings"] for plugin in config["plugins"] if isinstance(plugin, dict)]
+    options = handler["handlers"]["python"]["options"]
+    assert options["show_root_full_path"] is True  # "sb3_sgfd.dbc.losses", not "losses"
+    assert options["separate_signature"] is True and options["line_length"] <= 100
+    # mkdocstrings wraps a signature only when Black or Ruff is installed: the docs extra brings Ruff
+    (docs_extra,) = re.findall(r"^docs = \[(.*)\]$", (REPO / "pyproject.toml").read_text(), flags=re.MULTILINE)
+    assert {'"ruff"', '"black"'} & {name.strip() for name in docs_extra.split(",")}, docs_extra
+
+
+# -- figures measured by a committed command ----------------------------------------------------------------------
+# A table whose first column, "record", links a json under docs/measured/ (written by the command's own --record)
+# shows, in each other column, what that record says: the test knows how each column is read from a record.
+MEASURED = DOCS / "measured"
+
+
+def duration(seconds: float) -> str:
+    """``754.2`` as ``12m34s``, as the examples and the quick job print times."""
+    minutes, rest = divmod(round(seconds), 60)
+    return f"{minutes}m{rest:02d}s" if minutes else f"{rest}s"
+
+
+def record_cell(record: dict, column: str) -> str:
+    """What a docs table shows in ``column`` for a record."""
+    machine = record["machine"]
+    if column == "command":
+        words = record["command"].split()
+        if "--record" in words:
+            del words[words.index("--record") : words.index("--record") + 2]
+        return f"`{' '.join(words)}`"
+    if column == "date, machine":
+        load = f"load {machine['load_1min']:.1f} → {record['load_1min_at_end']:.1f}"
+        return f"{record['date']}, {machine['cpus']} cores ({machine['cpu']}), {load}"
+    if column == "wall time":
+        return duration(record["wall_seconds"])
+    if column == "training per step":
+        return f"{record['ms_per_step']:g} ms ({record['cpu_ms_per_step']:g} ms CPU)"
+    if column == "evaluation":
+        episodes = record["eval_episodes"]
+        return f"{duration(record['eval_seconds'])} ({episodes} episode{'s' * (episodes != 1)} per split)"
+    if column in record.get("returns", {}) and isinstance(record["returns"][column], list):
+        mean, std = record["returns"][column]
+        return f"{mean:.1f} ± {std:.1f}"
+    if column.startswith("IQM "):
+        value, low, high = record["iqm"][column.removeprefix("IQM ")]
+        return f"{value:.3f} [{low:.3f}, {high:.3f}]"
+    if column.startswith("P("):
+        value, low, high = record["improvement"][column]
+        return f"{value:.2f} [{low:.2f}, {high:.2f}]"
+    if column == "SGFD's weights":
+        weights = record["sgfd_weights"].values()
+        first = min(run["first_step"] for run in weights)
+        low, high = min(run["ess_min"] for run in weights), max(run["ess_max"] for run in weights)
+        return f"ESS {low:.2f}-{high:.2f} n from step {first}"
+    raise AssertionError(f"no rule for the column {column!r}")
+
+
+def measured_tables(page: str) -> list[tuple[list[str], list[str]]]:
+    """(header, row) of each row of ``page``'s tables whose first column is ``record``."""
+    rows = []
+    for table in markdown_tables((DOCS / page).read_text()):
+        if table[0][0] == "record":
+            rows += [(table[0], row) for row in table[1:]]
+    return rows
+
+
+def linked_record(cell: str) -> dict:
+    found = re.fullmatch(r"\[[^]]+\]\(measured/([\w.-]+\.json)\)", cell)
+    assert found is not None, f"the record column links a file under docs/measured/: {cell}"
+    return json.loads((MEASURED / found.group(1)).read_text())
+
+
+@pytest.mark.parametrize("page", ["examples.md", "getting-started.md"])
+def test_the_figures_a_page_quotes_are_its_records(page: str) -> None:
+    rows = measured_tables(page)
+    assert rows, f"{page} has no table of measured figures"
+    for header, (link, *cells) in rows:
+        record = linked_record(link)
+        for column, cell in zip(header[1:], cells, strict=True):
+            assert cell == record_cell(record, column), (page, link, column)
+
+
+def rows_in_order(shown: list[list[str]], printed: list[list[str]]) -> bool:
+    """Whether every row of ``shown`` is a row of ``printed``, in the same order."""
+    rest = iter(printed)
+    return bool(shown) and all(row in rest for row in shown)
+
+
+def bench_tables(page: str) -> list[tuple[str, list[list[str]]]]:
+    """Every table of ``page`` that follows a link to a bench's record (``](measured/bench-NAME.txt)``) in its
+    section, with that record's file name: the table is a copy of one the bench printed."""
+    found = []
+    for part in re.split(r"^#+ ", (DOCS / page).read_text(), flags=re.MULTILINE):
+        blocks = re.split(r"(\]\(measured/bench-[\w.-]+\.txt\))", part)
+        record = None
+        for block in blocks:
+            link = re.fullmatch(r"\]\(measured/(bench-[\w.-]+\.txt)\)", block)
+            if link:
+                record = link.group(1)
+            elif record is not None:
+                found += [(record, table) for table in markdown_tables(block)]
+    return found
+
+
+@pytest.mark.parametrize("page", ["performance.md", "papers-and-code.md", "benchmarks.md"])
+def test_the_bench_tables_a_page_shows_are_the_benches_printed_ones(page: str) -> None:
+    shown = bench_tables(page)
+    assert shown, f"{page} shows no bench table with its record"
+    for record, table in shown:
+        text = (MEASURED / record).read_text()
+        assert text.startswith("command: python bench/"), record
+        # the same header and rows the bench printed, in its order; the page may leave rows out
+        matches = [printed for printed in markdown_tables(text) if printed[0] == table[0]]
+        assert any(rows_in_order(table[1:], printed[1:]) for printed in matches), (page, record, table[0])
+
+
+def test_every_record_is_a_commands_output() -> None:
+    """Each file under docs/measured/ names the command that wrote it, its date and the machine."""
+    for path in MEASURED.iterdir():
+        if path.suffix == ".json":
+            record = json.loads(path.read_text())
+            assert {"command", "date", "machine"} <= set(record), path.name
+            assert record["command"].startswith(("python examples/", "sgfd-zoo quick")), path.name
+        else:
+            head = path.read_text().splitlines()[:4]
+            assert [line.split(":")[0] for line in head] == [
+                "command",
+                "date",
+                "machine at the start",
+                "machine at the end",
+            ]
+
+
+def test_the_quick_jobs_printed_tables_on_getting_started_are_its_records() -> None:
+    text = section((DOCS / "getting-started.md").read_text(), "Install and run the main job")
+    after = text[text.index("What `sgfd-zoo quick --short` printed") :]
+    printed = after[after.index("```\n") + 4 : after.index("\n```", after.index("```\n") + 4)]
+    (_, (link, *_)), *_ = measured_tables("getting-started.md")  # the block is the first record's run
+    record = linked_record(link)
+    table_lines = [line for line in printed.splitlines() if line.startswith("|")]
+    assert len(table_lines) >= 6
+    exported = (record["results"] + record["aggregate"]).splitlines()
+    assert all(line in exported for line in table_lines), [line for line in table_lines if line not in exported]
+    # and the headings over them
+    headings = [line for line in printed.splitlines() if line.startswith("# ")]
+    assert headings and all(heading in exported for heading in headings)
+    # the job is seeded: every run of the same command on the page printed the same tables
+    for _, (other, *_) in measured_tables("getting-started.md"):
+        again = linked_record(other)
+        if again["command"] == record["command"]:
+            assert (again["results"], again["aggregate"]) == (record["results"], record["aggregate"]), other

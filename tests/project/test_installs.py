@@ -111,4 +111,5 @@ def test_a_zoo_command_without_the_zoo_installed_names_the_install_in_one_line()
     result = run_without({"rl_zoo3", "ray"}, code, "train", "--algo", "sac", "--env", "SGFD/MT-walker-walk-v0")
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and "pip install 'sb3-sgfd[zoo]'" in lines[0], result.stderr
+    assert len(lines) == 1 and "pip install -e ./sgfd_envs -e '.[zoo]' -c constraints.txt" in lines[0], result.stderr
+    assert "sb3-sgfd" not in lines[0]  # the distribution is not on a package index: the clone is where it comes from

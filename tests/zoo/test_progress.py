@@ -43,7 +43,7 @@ def test_progress_lines_show_steps_rate_eta_and_the_latest_returns():
     report = {"steps": 5000, "total": 20000, "steps_per_second": 50.0, "returns": {"train": 312.44, "extrapolation": 8}}
     line = progress_line("sgfd_sac MT-walker-walk seed 0", report)
     assert "5000/20000" in line and " 25%" in line and "50 steps/s" in line
-    assert "ETA  5m00s" in line and "eval: train 312.4, extrapolation 8.0" in line
+    assert "ETA  5m00s" in line and "last eval: train 312.4, extrapolation 8.0" in line
     # a run at its end: no ETA
     assert "ETA      -" in progress_line("x", {**report, "steps": 20000})
     assert (duration(3725), duration(245), duration(7)) == ("1h02m", "4m05s", "7s")
@@ -134,6 +134,11 @@ def test_the_rate_and_eta_count_learning_steps_only(monkeypatch):
     assert "warm-up to step 1000" in progress_line("run", warm_up) and "ETA" not in progress_line("run", warm_up)
     assert learning["steps"] == 1100 and learning["steps_per_second"] == 10.0
     assert "10 steps/s  ETA 31m30s" in progress_line("run", learning)  # 18900 steps left at 10 steps/s
+    # at the step learning starts (where the quick job's first evaluation falls) no pace is measured yet: said so
+    at_start = reports[2]
+    assert at_start["steps"] == 1000 and at_start["steps_per_second"] == 0
+    assert "pace measured at the next report" in progress_line("run", at_start)
+    assert "steps/s" not in progress_line("run", at_start)
 
 
 def test_an_evaluation_is_reported_as_it_starts_each_split_and_as_it_ends():
@@ -157,7 +162,7 @@ def test_an_evaluation_is_reported_as_it_starts_each_split_and_as_it_ends():
     later = progress_line("run", reports[2], now=reports[2]["evaluating_since"] + 65)
     assert "evaluating extrapolation for 1m05s" in later and "ETA" not in later
     after = progress_line("run", reports[3])
-    assert "evaluating" not in after and "eval: interpolation" in after and "extrapolation" in after
+    assert "evaluating" not in after and "last eval: interpolation" in after and "extrapolation" in after
 
 
 def test_a_zoo_run_reports_its_evaluations_and_warm_up_to_the_sweep(tmp_path):

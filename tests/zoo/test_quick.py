@@ -113,7 +113,8 @@ def test_a_short_quick_job_trains_sgfd_not_plain_sac(tmp_path):
     # 1500 steps, the quick configuration's learning start at 1000: SGFD's classifier starts at 300 (a fifth).
     code, out, err = zoo(["quick", "-n", "1500", "--seeds", "0", "--eval-episodes", "1", "-f", str(tmp_path)])
     assert code == 0, err
-    assert "quick: 1500 steps per run; SGFD's classifier starts at step 300" in out
+    assert "quick: sgfd_sac and sac on SGFD/MT-walker-walk-v0, seeds 0, 1500 steps per run, into " in out
+    assert "quick: SGFD's classifier starts at step 300 (the configuration's start moved" in out
     sgfd, sac = (RunFolder(tmp_path / algo / f"{NAME}_1") for algo in ("sgfd_sac", "sac"))
     assert sgfd.config["classifier_start"] == 300 and "classifier_start" not in sac.config
     _, accuracy = sgfd.log("sgfd/classifier_accuracy")

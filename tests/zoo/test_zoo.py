@@ -1,7 +1,9 @@
 """The sgfd-zoo command: train, evaluate, plot, resume and optimize through the console script."""
 
 import csv
+import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -217,6 +219,26 @@ def test_table_renders_in_the_papers_layout():
             "n_timesteps must be a positive integer, got 0",
         ),
         (["train", "--env", ENV_ID, *TINY, "--eval-episodes", "0"], "--eval-episodes must be >= 1, got 0"),
+        # values rl-zoo3 would evaluate as Python: read first, each refusal naming the key
+        (
+            ["train", "--env", ENV_ID, *TINY, "--hyperparams", "learning_rate:1e-3x"],
+            "-params learning_rate:1e-3x: not a Python value (invalid decimal literal); expected a number",
+        ),
+        (
+            ["train", "--env", ENV_ID, *TINY, "--env-kwargs", "obs_type:pixels"],
+            """--env-kwargs obs_type:pixels: pixels is not defined; a string needs quotes that reach Python, e.g. """
+            '''--env-kwargs obs_type:"'pixels'"''',
+        ),
+        (
+            ["train", "--env", ENV_ID, *TINY, "-params", "policy_kwargs:dict(activation_fn=nn.Relu)"],
+            "-params policy_kwargs:dict(activation_fn=nn.Relu): nn.Relu is not defined",
+        ),
+        (
+            ["train", "--env", ENV_ID, *TINY, "--eval-env-kwargs", "image_size"],
+            "--eval-env-kwargs 'image_size': expected",
+        ),
+        (["optimize", "--env", ENV_ID, "--quick", "-params", "gamma:"], "-params gamma: no value after the colon"),
+        (["enjoy", "--env", ENV_ID, "--env-kwargs", "split:test"], "--env-kwargs split:test: test is not defined"),
         # env settings: a typo named with what the id takes; what the zoo sets itself explained
         (
             ["train", "--env", ENV_ID, *TINY, "--env-kwargs", "obs_typ:'state'"],
@@ -244,6 +266,17 @@ def test_bad_input_gives_one_clear_line_and_a_nonzero_exit(args, message, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("sgfd-zoo") and ": error: " in err[0] and message in err[0], err
     assert not logs.exists()
+
+
+def test_the_forms_rl_zoo3_documents_pass_the_value_check_and_are_not_run():
+    from sgfd_zoo.arguments import check_key_values
+
+    given = ["policy_kwargs:dict(net_arch=[64, 64], activation_fn=nn.ReLU)", "train_freq:(1, 'step')"]
+    given += ["learning_rate:'lin_1e-3'", "gamma:-1e-2", "normalize:True", "x:None", "y:{'a': [1, 2.5]}"]
+    check_key_values("-params", given)
+    # names are looked up, never called: a value that would run code when evaluated is still only read
+    with pytest.raises(ZooError, match="not_a_name is not defined"):
+        check_key_values("-params", ["x:print('ran')", "y:not_a_name"])
 
 
 def test_train_help_is_one_usage_block_of_the_zoos_algorithms_and_loads_no_training_stack():
@@ -428,13 +461,31 @@ def test_optimize_shares_a_study_through_a_journal_file(tmp_path):
 @pytest.mark.slow
 @pytest.mark.ray
 def test_the_quick_main_job_trains_both_evaluates_and_plots(tmp_path):
-    result = zoo("quick", "-f", str(tmp_path), "-n", "600", "--eval-episodes", "1")
+    record = tmp_path.parent / "quick.json"
+    result = zoo("quick", "-f", str(tmp_path), "-n", "600", "--eval-episodes", "1", "--record", str(record))
     assert "sweep: 4 trained, 0 already finished, 0 failed" in result.stdout  # two seeds by default
+    # what it runs, said first; which figures are final and what it wrote (with sizes), said last
+    assert result.stdout.startswith("quick: sgfd_sac and sac on SGFD/MT-walker-walk-v0, seeds 0 1, 600 steps per run")
+    assert "quick: SGFD's classifier starts at step 120" in result.stdout
+    assert "quick: the tables above are the final figures: each run's final model evaluated on 1 episodes" in (
+        result.stdout
+    )
+    assert re.search(r"quick: wrote [\d.]+ [kMG]?B into ", result.stdout)
+    assert re.search(r"and its checkpoints \([\d.]+ [kMG]?B, of which replay buffers [\d.]+ [kMG]?B\)", result.stdout)
+    # each run's log says the settings it used where the configuration's printed ones differ
+    (sgfd_log,) = (tmp_path / "sgfd_sac").glob("*_1.log")
+    assert "this run's settings where they differ from those above: classifier_start 120, n_timesteps 600" in (
+        sgfd_log.read_text()
+    )
+    saved = json.loads(record.read_text())
+    assert saved["command"].startswith("sgfd-zoo quick -f ") and saved["settings"]["classifier_start"] == 120
+    assert saved["results"] == (tmp_path / "results.md").read_text()
+    assert saved["aggregate"] == (tmp_path / "aggregate.md").read_text()
     # Progress while it runs (a log: the block at the end), and no Ray noise.
     assert "0 running, 0 waiting, 4 finished, 0 failed" in result.stdout
     # each run's end, with its latest evaluation returns
     finished = [line for line in result.stdout.splitlines() if "] finished sgfd_sac on" in line]
-    assert len(finished) == 2 and all("extrapolation " in line for line in finished)
+    assert len(finished) == 2 and all(": last evaluation during training train " in line for line in finished)
     assert "Ray" not in result.stdout + result.stderr
     # The aggregate statistics over the two seeds, with intervals, and their figures.
     assert "# interpolation: normalised score" in result.stdout and "P(SGFD > algo)" in result.stdout
