@@ -9,6 +9,8 @@ from rliable import metrics
 from sgfd_zoo.report.statistics import (
     IMPROVEMENT,
     aggregate,
+    interquartile_mean,
+    probability_of_improvement,
     read_csv,
     render_aggregate,
     score_matrices,
@@ -141,3 +143,15 @@ def test_a_split_played_on_a_stand_in_is_marked_in_the_aggregate_tables():
     marked = render_aggregate(rows, scores, stand_in_splits={split})
     assert f"# {split} (stand-in):" in marked and "not the benchmark's numbers" in marked
     assert "(stand-in)" not in render_aggregate(rows, scores)
+
+
+@pytest.mark.parametrize("shape", [(5, 3), (4, 1), (1, 2), (10, 5)])
+def test_the_bootstraps_measures_equal_rliables_to_the_last_bit(shape):
+    # rounded scores: ties within and between the algorithms, as a few seeds of a hard task give
+    rng = np.random.default_rng(sum(shape))
+    x, y = (np.round(rng.uniform(0, 1, size=shape), 1) for _ in range(2))
+    assert interquartile_mean(x) == metrics.aggregate_iqm(x)
+    assert probability_of_improvement(x, y) == metrics.probability_of_improvement(x, y)
+    assert probability_of_improvement(x, x) == metrics.probability_of_improvement(x, x) == 0.5
+    fewer = y[: max(shape[0] - 2, 1)]  # another number of runs
+    assert probability_of_improvement(x, fewer) == metrics.probability_of_improvement(x, fewer)
