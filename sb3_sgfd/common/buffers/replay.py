@@ -15,10 +15,10 @@ from stable_baselines3.common.preprocessing import get_obs_shape
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_sgfd.common.buffers.storage import (
-    _EMPTY_SPACE,
+    EMPTY_SPACE,
     EpisodeIndexMixin,
     FrameStorageMixin,
-    _check_frame_stack,
+    check_frame_stack,
     stored_pairs,
 )
 from sb3_sgfd.common.transfer import BatchTransfer
@@ -148,10 +148,10 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
         self.n_steps, self.gamma = int(n_steps), float(gamma)
         if not isinstance(same_episode_negatives, (bool, np.bool_)):
             raise ValueError(f"same_episode_negatives must be a bool, got {same_episode_negatives!r}")
-        self.frame_stack = _check_frame_stack(frame_stack, observation_space, optimize_memory_usage)
+        self.frame_stack = check_frame_stack(frame_stack, observation_space, optimize_memory_usage)
         # With frame_stack the parent gets a zero-size observation space, so that neither its
         # allocation nor its memory warning concerns full stacks; the real space is put back below.
-        parent_space = observation_space if self.frame_stack is None else _EMPTY_SPACE
+        parent_space = observation_space if self.frame_stack is None else EMPTY_SPACE
         super().__init__(
             buffer_size,
             parent_space,

@@ -48,7 +48,7 @@ class FrameStorageMixin:
     Owns ``frames``, ``history``, ``side_frames``, ``has_side_frame`` and the state of the newest transition
     (``_last_next_obs``, ``_last_done``, ``_last_history``, ``_last_slot``), which the host's ``add`` and ``reset``
     update. Needs from the host: SB3's ``buffer_size``, ``n_envs``, ``pos``, ``full``, ``obs_shape``,
-    ``observation_space`` and ``observations``, the checked ``frame_stack`` (``_check_frame_stack``),
+    ``observation_space`` and ``observations``, the checked ``frame_stack`` (``check_frame_stack``),
     ``is_sampleable`` and ``storage_nbytes``.
     """
 
@@ -73,7 +73,7 @@ class FrameStorageMixin:
         """
         Allocate the per-frame storage used with ``frame_stack``.
 
-        :param observation_space: The stacked observation space (checked by ``_check_frame_stack``)
+        :param observation_space: The stacked observation space (checked by ``check_frame_stack``)
         """
         assert self.frame_stack is not None
         n_frames, dtype = self.frame_stack, observation_space.dtype
@@ -233,10 +233,10 @@ class FrameStorageMixin:
 
 
 # Observation space handed to ReplayBuffer.__init__ with frame_stack: its arrays then take no memory.
-_EMPTY_SPACE = spaces.Box(low=0, high=0, shape=(0,), dtype=np.uint8)
+EMPTY_SPACE = spaces.Box(low=0, high=0, shape=(0,), dtype=np.uint8)
 
 
-def _check_frame_stack(
+def check_frame_stack(
     frame_stack: int | None, observation_space: spaces.Space, optimize_memory_usage: bool
 ) -> int | None:
     """
