@@ -68,7 +68,7 @@ SMOKE_BUDGETS: dict[str, float] = {
 #: Seconds a learning run measures for, once its measured phase has started (the rest of its budget builds it).
 LEARNING_SECONDS = {False: 20.0, True: 4.0}
 #: Seconds concurrent runs are given to start (build, fill, reach SGFD's phase and capture), and to measure.
-CONCURRENT_START = {False: 32.0, True: 110.0}
+CONCURRENT_START = {False: 32.0, True: 15.0}
 CONCURRENT_WINDOW = {False: 12.0, True: 4.0}
 LEARNING_ENV = "SGFD/walker-walk-v0"
 #: SGFD's classifier from this env step in the learning runs (the zoo's paper setting is 100k): at its first update

@@ -270,11 +270,32 @@ EVALUATED_HYPERPARAMETERS = ("policy_kwargs", "replay_buffer_kwargs", "monitor_k
 CODE_HYPERPARAMETERS = ("env_wrapper", "vec_env_wrapper", "callback", "replay_buffer_class")
 
 
+#: Packages whose classes a configuration may name (``policy: sb3_sgfd.policies.CnnPolicy``,
+#: ``replay_buffer_class: sb3_sgfd.buffers.DomainReplayBuffer``, as the zoo's own runs write them): importing them
+#: runs only the installed agents' and envs' code.
+TRUSTED_PACKAGES = ("sb3_sgfd.", "sgfd_envs.", "stable_baselines3.", "sb3_contrib.", "rl_zoo3.", "gymnasium.")
+
+
+def _foreign_names(value: Any) -> list[str]:
+    """The dotted names in ``value`` (a name, or rl-zoo3's list or dict of names with their arguments) outside
+    :data:`TRUSTED_PACKAGES`."""
+    if isinstance(value, str):
+        return [value] if "." in value and not value.startswith(TRUSTED_PACKAGES) else []
+    if isinstance(value, dict):
+        return [name for key in value for name in _foreign_names(str(key))]
+    if isinstance(value, (list, tuple)):
+        return [name for item in value for name in _foreign_names(item)]
+    return []
+
+
 def hyperparameter_problem(key: str, value: Any) -> str | None:
     """Why rl-zoo3 would run code for hyperparameter ``key`` = ``value`` (read from a file or a spec), or None: a
-    string it evaluates that is not a literal (:func:`literal_expression`), or a name of code to import."""
-    if key in CODE_HYPERPARAMETERS or (key == "policy" and isinstance(value, str) and "." in value):
-        return f"{key} names code to import ({value!r})"
+    string it evaluates that is not a literal (:func:`literal_expression`), or a name of code to import from
+    outside the installed agents and envs."""
+    if key in CODE_HYPERPARAMETERS or key == "policy":
+        foreign = _foreign_names(value)
+        if foreign:
+            return f"{key} names code to import ({foreign[0]!r})"
     if key in EVALUATED_HYPERPARAMETERS and isinstance(value, str):
         try:
             literal_expression(value)

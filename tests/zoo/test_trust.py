@@ -169,7 +169,9 @@ def test_the_committed_specs_flags_pass_as_they_are() -> None:
     for spec in sorted((REPO / "studies").glob("*/spec.yml")):
         flags = yaml.safe_load(spec.read_text())["train"]
         assert read_spec(spec)["train"] == [str(flag) for flag in flags]
-        assert "policy_kwargs:dict(net_arch=[256, 256])" in flags
+    # rl-zoo3's dict(...) of literals among them
+    mt_state = yaml.safe_load((REPO / "studies" / "mt-state" / "spec.yml").read_text())
+    assert "policy_kwargs:dict(net_arch=[256, 256])" in mt_state["train"]
 
 
 @pytest.mark.parametrize("name", ["../x", "{tmp}/x", "a/b", ".."])
@@ -408,3 +410,23 @@ def test_enjoy_reads_the_runs_saved_hyperparameters_as_data_before_rl_zoo3_does(
     finish(run)
     line = refused(["enjoy", "--algo", "sac", "--env", ENV_ID, "-f", logs, "--no-render"], f"{run / NAME}/config.yml")
     assert "refused" in line and not marker.exists()
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "refused"),
+    [
+        ("policy", "sb3_sgfd.policies.MlpPolicy", False),  # the zoo's own runs name their classes so
+        ("replay_buffer_class", "sb3_sgfd.buffers.DomainReplayBuffer", False),
+        ("policy", "stable_baselines3.sac.policies.CnnPolicy", False),
+        ("policy", "MlpPolicy", False),
+        ("env_wrapper", [{"gymnasium.wrappers.TimeLimit": {"max_episode_steps": 10}}], False),
+        ("policy", "os.system", True),
+        ("policy", "sb3_sgfd_evil.policies.MlpPolicy", True),
+        ("callback", "evil.Callback", True),
+        ("env_wrapper", [{"evil.Wrapper": {}}], True),
+    ],
+)
+def test_a_config_may_name_classes_of_the_installed_agents_and_envs_only(key: str, value, refused: bool) -> None:
+    from sgfd_zoo.runs.safe import hyperparameter_problem
+
+    assert (hyperparameter_problem(key, value) is not None) == refused

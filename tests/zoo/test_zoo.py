@@ -329,8 +329,9 @@ def test_zoo_error_reports_missing_checkpoint_for_resume(tmp_path):
         SGFDExperimentManager(*manager_args, quick=True, resume=True)
 
 
-# SAC, SGFD_SAC and AMBS are killed and resumed in the bit-for-bit test below; here two other objectives (SGQN's
-# save and load: tests/agents/test_encoder_sac.py; its pixel run here took 4 minutes).
+# SAC and SGFD_SAC are killed and resumed in the bit-for-bit test below (AMBS resumes exactly in
+# test_exact_resume.py); here two other objectives (SGQN's save and load: tests/agents/test_encoder_sac.py; its
+# pixel run here took 4 minutes).
 @pytest.mark.slow
 @pytest.mark.parametrize("algo", ["dbc", "ted"])
 def test_a_killed_run_resumes_from_its_last_checkpoint(algo, tmp_path):
@@ -389,7 +390,8 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(algo, tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("algo", ["sac", "sgfd_sac", "ambs"])
+# AMBS's own state across a save and a resume: tests/zoo/test_exact_resume.py (the suite's time, issue 38's CI)
+@pytest.mark.parametrize("algo", ["sac", "sgfd_sac"])
 def test_a_run_killed_and_resumed_ends_where_an_unbroken_run_ends_bit_for_bit(algo, tmp_path):
     # Checkpoints hold the training state (generators, envs): N steps, a kill, a resume to 2N, and the model
     # is that of 2N steps straight.
