@@ -20,8 +20,9 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.get_closest_marker("ray") is not None:
             item.add_marker(pytest.mark.xdist_group("ray"))
-    # The Ray tests first: their worker works through them while the others share out the rest.
-    items.sort(key=lambda item: item.get_closest_marker("ray") is None)
+    # The Ray tests first: their worker works through them while the others share out the rest, the slow ones
+    # first, so that the run does not end on one long test while the other worker idles.
+    items.sort(key=lambda item: (item.get_closest_marker("ray") is None, item.get_closest_marker("slow") is None))
     if torch.cuda.is_available():
         return
     skip = pytest.mark.skip(reason="needs a CUDA device (none here)")
