@@ -124,10 +124,9 @@ def render_tables(results: list[dict[str, Any]]) -> str:
             matrix.append(cells)
         matrix.append(["**Total**", *(f"**{totals[algo]:.1f}**" for algo in algos)])
         counts = [len(values) for (s, _, _), values in by_cell.items() if s == split]
-        seeds = str(min(counts)) if min(counts) == max(counts) else f"{min(counts)}-{max(counts)}"
         mark = STAND_IN_MARK if split in stand_in_splits else ""
         writer = MarkdownTableWriter(
-            table_name=f"{split}{mark} (mean ± std over {seeds} seed{'s' if max(counts) > 1 else ''})",
+            table_name=f"{split}{mark} ({over_seeds(counts)})",
             headers=["Task", *(column_name(algo) for algo in algos)],
             value_matrix=matrix,
         )
@@ -191,10 +190,9 @@ def render_benchmark_tables(results: list[dict[str, Any]], reps: int = 2000, see
                 )
             matrix.append(aggregate_cells)
             counts = [len(values) for (a, _, _), values in by_cell.items() if a == algo]
-            seeds = str(min(counts)) if min(counts) == max(counts) else f"{min(counts)}-{max(counts)}"
             writer = MarkdownTableWriter(
                 table_name=(
-                    f"{name}: {column_name(algo)} (mean ± std over {seeds} seed{'s' if max(counts) > 1 else ''}; "
+                    f"{name}: {column_name(algo)} ({over_seeds(counts)}; "
                     f"IQM of return / {MAX_RETURN:g} over runs x tasks, 95% CI)"
                 ),
                 headers=["Task", *headers],
@@ -205,6 +203,12 @@ def render_benchmark_tables(results: list[dict[str, Any]], reps: int = 2000, see
             out.write(STAND_IN_NOTE if stand_in_modes else "")
             out.write("\n")
     return out.getvalue()
+
+
+def over_seeds(counts: list[int]) -> str:
+    """A table title's "mean ± std over 3 seeds" (or "over 2-3 seeds" where cells hold different numbers of runs)."""
+    seeds = str(min(counts)) if min(counts) == max(counts) else f"{min(counts)}-{max(counts)}"
+    return f"mean ± std over {seeds} seed{'s' if max(counts) > 1 else ''}"
 
 
 def write_results(results: list[dict[str, Any]], folder: Path, reps: int = 2000, seed: int = 0) -> tuple[Path, Path]:

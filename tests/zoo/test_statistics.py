@@ -155,3 +155,11 @@ def test_the_bootstraps_measures_equal_rliables_to_the_last_bit(shape):
     assert probability_of_improvement(x, x) == metrics.probability_of_improvement(x, x) == 0.5
     fewer = y[: max(shape[0] - 2, 1)]  # another number of runs
     assert probability_of_improvement(x, fewer) == metrics.probability_of_improvement(x, fewer)
+
+
+def test_a_tables_title_counts_its_seeds():
+    from sgfd_zoo.report.evaluate import over_seeds
+
+    assert over_seeds([1, 1]) == "mean ± std over 1 seed"
+    assert over_seeds([3, 3]) == "mean ± std over 3 seeds"
+    assert over_seeds([2, 3]) == "mean ± std over 2-3 seeds"
