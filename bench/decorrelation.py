@@ -32,6 +32,7 @@ import gymnasium as gym
 import torch
 from torch import Tensor, nn
 
+from sb3_sgfd.sgfd.classifier import DomainClassifier
 from sb3_sgfd.sgfd.decorrelation import WeightMemory, solve_official_weights, solve_weights
 from sb3_sgfd.sgfd.functional import (
     classifier_accuracy,
@@ -43,7 +44,6 @@ from sb3_sgfd.sgfd.functional import (
     weighted_pearson,
 )
 from sb3_sgfd.sgfd.settings import SGFDSettings
-from sb3_sgfd.sgfd.weighting import DomainClassifier, OfficialClassifier
 from sgfd_analysis.correlation import collect_states, standardised_sample, state_names
 from sgfd_analysis.correlation import train_domain_classifier as correlation_classifier
 from sgfd_analysis.synthetic import DomainBatch, ScaledLogits, make_domain_batch
@@ -297,7 +297,7 @@ def official_probs(train_z: Tensor, train_domains: Tensor, z: Tensor, seed: int,
     """p from the official reading's own classifier, trained its way (SGD 0.01 on the cross-entropy of its softmax
     output, rounds of 10 steps on 640 samples while a batch's accuracy is below 0.8): guided backprop, T = 1."""
     torch.manual_seed(seed)
-    classifier = OfficialClassifier(z.shape[1], N_DOMAINS)
+    classifier = DomainClassifier(z.shape[1], N_DOMAINS, orthogonal=True)
     optimizer = torch.optim.SGD(classifier.parameters(), lr=0.01, momentum=0.9, weight_decay=1e-4)
     generator = torch.Generator().manual_seed(seed)
     for _ in range(rounds):

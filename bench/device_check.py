@@ -302,8 +302,8 @@ def learning_run(algo: str, env_id: str, smoke: bool, window: tuple[float, float
                 raise RuntimeError(f"nothing measured (learning_starts {model.learning_starts})")
             (t0, u0), (t1, u1) = measure.marks[:2]
             rate = (u1 - u0) / (t1 - t0)
-            captured = bool(getattr(model, "_update", None) and model._update.graphs)
-            weighted = bool(model.weighting.ready) if hasattr(model, "weighting") else False
+            captured = bool(model._update.pieces.graphs)
+            weighted = model.weighting is not None and bool(model.weighting.ready)
             shape = "x".join(str(size) for size in model.observation_space.shape)
             model.env.close()
         finally:

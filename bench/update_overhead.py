@@ -142,7 +142,7 @@ def check_phase(key: str, model: SGFD_SAC, first_update: int, steps_before: int)
     taken, updates = classifier_steps(model) - steps_before, model._n_updates - first_update
     if phase != "steady":
         assert taken == updates, f"{key}: the classifier took {taken} steps where the phase holds {updates}"
-    model._log_figures()  # what the device still holds, into the logger
+    model._update.log_figures(model.logger)  # what the device still holds, into the logger
     weighted = "sgfd/weight_ess" in model.logger.name_to_value
     assert weighted == (phase != "classifier"), f"{key}: the weights were {'on' if weighted else 'off'}"
 
@@ -181,7 +181,7 @@ def dispatches_per_update(model: BaseAlgorithm, batch_size: int, steps: int = 4)
     """Host dispatches per update, and (compiled) the dispatches inside its captured pieces per update."""
     counter = Dispatches()
     runner = getattr(model, "_update", None)
-    replays = runner is not None and model._captures_update()  # type: ignore[attr-defined]
+    replays = runner is not None and runner.capture
     if replays:
         run = runner.run
 

@@ -31,6 +31,7 @@ from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global fig
 from matplotlib.patches import Rectangle
 
 import sgfd_envs
+from sb3_sgfd.sgfd.classifier import DomainClassifier
 from sb3_sgfd.sgfd.functional import (
     classifier_accuracy,
     effective_sample_size,
@@ -39,7 +40,6 @@ from sb3_sgfd.sgfd.functional import (
     train_classifier,
     weighted_pearson,
 )
-from sb3_sgfd.sgfd.weighting import DomainClassifier
 from sgfd_zoo.arguments import ZooError
 
 WEIGHTINGS = ("raw", "global", "sgfd")

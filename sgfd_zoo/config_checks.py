@@ -176,8 +176,9 @@ def check_algorithm_values(algo_class: type, hyperparams: dict[str, Any]) -> Non
 
 
 def constructor_arguments(algo_class: type) -> set[str]:
-    """The keyword arguments ``algo_class`` takes, following ``**kwargs`` up to the base class that has them."""
-    names: set[str] = set()
+    """The keyword arguments ``algo_class`` takes, following ``**kwargs`` up to the base class that has them, and
+    the settings it takes through them (``SGFD_SAC.settings_keywords``)."""
+    names: set[str] = set(getattr(algo_class, "settings_keywords", ()))
     for cls in algo_class.__mro__:
         if "__init__" not in vars(cls):
             continue

@@ -185,7 +185,6 @@ class AMBS(EncoderSAC):
         policy: Any,
         env: Any,
         *,
-        representation: str | None = "ambs",
         encoder_tau: float | None = 0.05,
         actor_update_interval: int = 2,
         augmentation_views: int = 2,
@@ -195,7 +194,6 @@ class AMBS(EncoderSAC):
         super().__init__(
             policy,
             env,
-            representation=representation,
             encoder_tau=encoder_tau,
             actor_update_interval=actor_update_interval,
             augmentation_views=augmentation_views,

@@ -16,7 +16,7 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.distributions import SquashedDiagGaussianDistribution
-from stable_baselines3.common.policies import ContinuousCritic
+from stable_baselines3.common.policies import BasePolicy, ContinuousCritic
 from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, CombinedExtractor, FlattenExtractor
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
@@ -251,6 +251,17 @@ class EncoderMlpPolicy(SharedEncoderPolicy):
     default_features_extractor_class = MlpEncoder
 
 
+#: The policies of EncoderSAC and its agents by name (``SGFD_SAC("CnnPolicy", env)``)
+POLICY_ALIASES: dict[str, type[BasePolicy]] = {
+    "MlpPolicy": MlpPolicy,
+    "CnnPolicy": CnnPolicy,
+    "SharedEncoderPolicy": SharedEncoderPolicy,
+    "SGFDPolicy": SGFDPolicy,
+    "EncoderMlpPolicy": EncoderMlpPolicy,
+    "MultiInputPolicy": MultiInputPolicy,
+}
+
+
 def reads_images(extractor_class: type[BaseFeaturesExtractor]) -> bool:
     """Whether an encoder class takes SB3's ``normalized_image`` (it reads images, and checks that they are)."""
     return "normalized_image" in inspect.signature(extractor_class.__init__).parameters
@@ -266,6 +277,28 @@ def critic_and_features(
         features = critic.extract_features(observations, critic.features_extractor)
     q_input = th.cat([features, actions], dim=1)
     return tuple(q_net(q_input) for q_net in critic.q_networks), features
+
+
+def actor_action_log_prob(policy: SACPolicy, observations: th.Tensor, z: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    """The actor's actions and their log-probabilities for a batch: from the critic's features z of it when the actor
+    reads the critic's encoder (a :class:`SharedEncoderPolicy`: the same values, without a second pass), else as SB3's
+    actor computes them from the observations."""
+    if isinstance(policy, SharedEncoderPolicy):
+        return policy.actor.action_log_prob_of_features(z)
+    return policy.actor.action_log_prob(observations)  # type: ignore[union-attr, operator]
+
+
+def actor_q_values(
+    policy: SACPolicy, observations: th.Tensor, z: th.Tensor, actions: th.Tensor, reuse_features: bool
+) -> tuple[th.Tensor, ...]:
+    """The critic's Q of the actor's actions: with ``reuse_features`` and a :class:`SharedEncoderPolicy`, on the
+    critic's (detached) features z of this step, as the authors' codes (the encoder detached); else SB3's, the batch
+    encoded again."""
+    critic = policy.critic  # type: ignore[union-attr]
+    if reuse_features and isinstance(policy, SharedEncoderPolicy):
+        q_input = th.cat([z, actions], dim=1)
+        return tuple(q_net(q_input) for q_net in critic.q_networks)
+    return critic(observations, actions)
 
 
 def check_encoder_setup(model: Any, trains_encoder: bool) -> None:

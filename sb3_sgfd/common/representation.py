@@ -155,6 +155,22 @@ def make_representation(name: str | None, kwargs: dict[str, Any] | None) -> Repr
         raise ValueError(f"representation_kwargs for {name!r}: {error}") from None
 
 
+def set_up_representation(objective: Representation, model: Agent, seed: int) -> None:
+    """Build ``objective``'s models for ``model`` (:meth:`Representation.setup`) from a generator of its own seeded
+    by ``seed``, as is its random stream afterwards: SAC's random streams stay those of SB3's SAC.
+
+    :param objective: the objective, made by :func:`make_representation`
+    :param model: the algorithm (its policy, action space and device are set)
+    :param seed: the objective's seed, derived from the model's
+    """
+    device = next(model.critic.parameters()).device
+    objective.generator = th.Generator(device=device).manual_seed(seed)
+    with th.random.fork_rng(devices=[]):  # the CPU generator: CUDA streams stay SAC's
+        th.random.default_generator.manual_seed(seed)
+        objective.setup(model)
+    objective.to(device)
+
+
 def step(loss: th.Tensor, *optimizers: th.optim.Optimizer) -> None:
     """One backward pass of ``loss`` and a step of each optimiser.
 

@@ -11,8 +11,7 @@ from torch import Tensor, nn
 
 
 class TensorStateModule(nn.Module):
-    """Subclasses name their state's tensors in ``state_tensors`` and take them back in ``load_state_tensors``;
-    a state saved as ``_extra_state`` (version 0.1.0 kept it so) is handed to ``load_legacy_state``."""
+    """Subclasses name their state's tensors in ``state_tensors`` and take them back in ``load_state_tensors``."""
 
     def state_tensors(self) -> dict[str, Tensor]:
         """The state to save, by name (absent entries are not saved: e.g. an empty memory)."""
@@ -20,10 +19,6 @@ class TensorStateModule(nn.Module):
 
     def load_state_tensors(self, tensors: dict[str, Tensor]) -> None:
         """Take back what ``state_tensors`` gave (possibly from another device or an empty state)."""
-        raise NotImplementedError
-
-    def load_legacy_state(self, state: dict[str, Any]) -> None:
-        """Take back a state saved by ``get_extra_state`` in version 0.1.0."""
         raise NotImplementedError
 
     def _save_to_state_dict(self, destination: dict[str, Any], prefix: str, keep_vars: bool) -> None:
@@ -55,8 +50,4 @@ class TensorStateModule(nn.Module):
         for key in own:
             if key in unexpected_keys:
                 unexpected_keys.remove(key)
-        legacy = own.pop(prefix + "_extra_state", None)
-        if legacy is not None:
-            self.load_legacy_state(legacy)
-        else:
-            self.load_state_tensors({key[len(prefix) :]: torch.as_tensor(value) for key, value in own.items()})
+        self.load_state_tensors({key[len(prefix) :]: torch.as_tensor(value) for key, value in own.items()})

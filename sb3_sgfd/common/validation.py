@@ -204,6 +204,15 @@ def check_encoder_sac_arguments(arguments: Mapping[str, Any]) -> None:
             ENCODER_SAC_ARGUMENT_CHECKS[name](name, value)
 
 
+def check_fixed_representation(algorithm: str, fixed: str | None, representation: str | None) -> None:
+    """Refuse an algorithm with an objective of its own (``fixed``) given another ``representation``."""
+    if fixed is not None and representation != fixed:
+        raise ValueError(
+            f"{algorithm} trains the {fixed!r} representation, got representation={representation!r} (EncoderSAC "
+            "takes any)"
+        )
+
+
 def check_hyperparameters(algo_class: type, hyperparameters: Mapping[str, Any]) -> None:
     """Refuse, before anything is built, a bad value of a constructor argument of ``algo_class`` among
     ``hyperparameters``: through the algorithm's own ``check_arguments`` (the agents of this package: SAC's

@@ -111,7 +111,6 @@ class DBC(EncoderSAC):
         policy: Any,
         env: Any,
         *,
-        representation: str | None = "dbc",
         encoder_tau: float | None = 0.05,
         actor_update_interval: int = 2,
         **kwargs: Any,
@@ -119,7 +118,6 @@ class DBC(EncoderSAC):
         super().__init__(
             policy,
             env,
-            representation=representation,
             encoder_tau=encoder_tau,
             actor_update_interval=actor_update_interval,
             **kwargs,

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -160,28 +160,19 @@ def _centred_covariance(u: Tensor, a: Tensor) -> tuple[Tensor, Tensor]:
 
 
 def descend(
-    theta: Tensor,
-    gradient: Callable[[int, Tensor], Tensor],
-    *,
-    iters: int,
-    lr: Callable[[int], float],
-    momentum: float,
-    weight_decay: float,
-    max_step: float | None,
+    theta: Tensor, gradient: Callable[[int, Tensor], Tensor], steps: SolverSteps, lr: Callable[[int], float]
 ) -> Tensor:
-    """``iters`` steps of SGD with momentum and weight decay on the logits theta (torch's SGD, written out: no
+    """``steps.iters`` steps of SGD with momentum and weight decay on the logits theta (torch's SGD, written out: no
     optimiser state, no host read), both readings' solver loop.
 
     :param theta: the starting logits (n,)
     :param gradient: (step, theta) -> the objective's gradient in theta
-    :param iters: steps
+    :param steps: the steps' settings (``lr`` is read from the schedule below)
     :param lr: step -> learning rate
-    :param momentum: SGD momentum
-    :param weight_decay: SGD weight decay on theta
-    :param max_step: largest change of a logit in one step (a trust region); None: unbounded
     """
+    momentum, weight_decay, max_step = steps.momentum, steps.weight_decay, steps.max_step
     velocity = torch.zeros_like(theta)
-    for step in range(iters):
+    for step in range(steps.iters):
         grad = torch.add(gradient(step, theta), theta, alpha=weight_decay)
         velocity = grad if step == 0 else torch.add(grad, velocity, alpha=momentum)
         if max_step is None:
@@ -193,6 +184,45 @@ def descend(
 
 
 Solution = tuple[Tensor, Tensor, Tensor, Tensor]  # weights (n,), logits (n,), loss before, loss after
+
+
+class SolverInputs(NamedTuple):
+    """What a solver core reads of one batch, drawn and gathered before its arithmetic (so that the core makes no
+    random draw and no host read: what ``torch.compile`` fuses).
+
+    :param z: the batch's features (n, d), as the reading prepares them
+    :param probs: p(Z_i) (d,)
+    :param omega: the RFF frequencies (None: the features themselves)
+    :param psi: the RFF phases
+    :param remembered: the memory's features (None: no memory)
+    :param fixed_logits: the memory's weight logits, constants of the solve
+    """
+
+    z: Tensor
+    probs: Tensor
+    omega: Tensor | None
+    psi: Tensor | None
+    remembered: Tensor | None
+    fixed_logits: Tensor | None
+
+
+class SolverSteps(NamedTuple):
+    """How a solver core descends (:func:`descend`) and how strongly it keeps the weights near uniform.
+
+    :param iters: steps (the code's reading: epochs, each on its own RFF draw)
+    :param lr: learning rate (the code's reading: divided by 10 for the second half)
+    :param momentum: SGD momentum
+    :param weight_decay: SGD weight decay on the logits
+    :param ess_penalty: weight of the term that keeps the weights near uniform
+    :param max_step: largest change of a logit in one step; None: unbounded
+    """
+
+    iters: int
+    lr: float
+    momentum: float
+    weight_decay: float
+    ess_penalty: float
+    max_step: float | None
 
 
 def solve_weights(
@@ -232,30 +262,18 @@ def solve_weights(
     omega, psi = draw_fourier((d, n_rff), (d, n_rff), z, generator) if use_rff else (None, None)
     probs = z.new_full((d,), 1.0 / d) if feature_probs is None else feature_probs.detach().to(z)
     remembered, fixed_logits = (None, None) if memory is None else memory.rows(z)
-    settings = (iters, lr, momentum, weight_decay, ess_penalty, max_step, covariance)
-    weights, theta, before, after = (core or paper_solution)(z, probs, omega, psi, remembered, fixed_logits, *settings)
+    inputs = SolverInputs(z, probs, omega, psi, remembered, fixed_logits)
+    steps = SolverSteps(iters, lr, momentum, weight_decay, ess_penalty, max_step)
+    weights, theta, before, after = (core or paper_solution)(inputs, steps, covariance)
     if memory is not None and update_memory:
         memory.update(z, theta, take)
     return weights, before, after
 
 
-def paper_solution(
-    z: Tensor,
-    probs: Tensor,
-    omega: Tensor | None,
-    psi: Tensor | None,
-    remembered: Tensor | None,
-    fixed_logits: Tensor | None,
-    iters: int,
-    lr: float,
-    momentum: float,
-    weight_decay: float,
-    ess_penalty: float,
-    max_step: float | None,
-    covariance: str,
-) -> Solution:
+def paper_solution(inputs: SolverInputs, steps: SolverSteps, covariance: str) -> Solution:
     """The paper reading's objective, L(w) / L(1) + ess_penalty * (n / ESS(w) - 1) on one RFF draw, minimised by
     :func:`descend` from uniform weights (see ``learn_sample_weights`` for why each choice)."""
+    z, probs, omega, psi, remembered, fixed_logits = inputs
     n, d = z.shape
     rows = z if remembered is None else torch.cat([z, remembered])
     features = fourier_features(rows, omega, psi) if omega is not None and psi is not None else rows.unsqueeze(-1)
@@ -273,7 +291,7 @@ def paper_solution(
     loss_start = (pairs * cov.square()).sum()
     scale = torch.where(loss_start > 0, 1 / loss_start, 0.0)
     scaled_pairs = doubled_pairs * scale
-    penalty = 2 * ess_penalty * n
+    penalty = 2 * steps.ess_penalty * n
 
     def gradient(step: int, theta: Tensor) -> Tensor:
         a = distribution(theta)
@@ -286,15 +304,7 @@ def paper_solution(
         own = torch.softmax(theta, dim=0)
         return (a * (grad_a - a @ grad_a))[:n] + penalty * own * (own - own @ own)
 
-    theta = descend(
-        z.new_zeros(n),
-        gradient,
-        iters=iters,
-        lr=lambda _: lr,
-        momentum=momentum,
-        weight_decay=weight_decay,
-        max_step=max_step,
-    )
+    theta = descend(z.new_zeros(n), gradient, steps, lr=lambda _: steps.lr)
     weights = n * torch.softmax(theta, dim=0)
     own_features = features[:n]
     before = (
@@ -341,31 +351,18 @@ def solve_official_weights(
     draws = max(iters, 1)
     omega, psi = draw_fourier((draws, 1, 1, n_rff), (draws, 1, d, n_rff), z, generator) if use_rff else (None, None)
     remembered, fixed_logits = (None, None) if memory is None else memory.rows(z)
-    settings = (iters, lr, momentum, weight_decay, ess_penalty, max_step)
-    weights, theta, before, after = (core or official_solution)(
-        z, probs.to(z), omega, psi, remembered, fixed_logits, *settings
-    )
+    inputs = SolverInputs(z, probs.to(z), omega, psi, remembered, fixed_logits)
+    steps = SolverSteps(iters, lr, momentum, weight_decay, ess_penalty, max_step)
+    weights, theta, before, after = (core or official_solution)(inputs, steps)
     if memory is not None and update_memory:
         memory.update(z, theta)
     return weights, before, after
 
 
-def official_solution(
-    z: Tensor,
-    probs: Tensor,
-    omega: Tensor | None,
-    psi: Tensor | None,
-    remembered: Tensor | None,
-    fixed_logits: Tensor | None,
-    iters: int,
-    lr: float,
-    momentum: float,
-    weight_decay: float,
-    ess_penalty: float,
-    max_step: float | None,
-) -> Solution:
+def official_solution(inputs: SolverInputs, steps: SolverSteps) -> Solution:
     """The code's objective on :func:`descend` (see :func:`solve_official_weights`)."""
-    n = z.shape[0]
+    z, probs, omega, psi, remembered, fixed_logits = inputs
+    n, iters, ess_penalty = z.shape[0], steps.iters, steps.ess_penalty
     rows = z if remembered is None else torch.cat([z, remembered])
     draws = max(iters, 1)
     if omega is not None and psi is not None:
@@ -385,13 +382,7 @@ def official_solution(
         return grad + ess_penalty * 2 * own * (own - concentration) / concentration
 
     theta = descend(
-        z.new_ones(n),
-        gradient,
-        iters=iters,
-        lr=lambda epoch: lr * 0.1 ** math.floor(epoch / (iters * 0.5)),
-        momentum=momentum,
-        weight_decay=weight_decay,
-        max_step=max_step,
+        z.new_ones(n), gradient, steps, lr=lambda epoch: steps.lr * 0.1 ** math.floor(epoch / (iters * 0.5))
     )
     weights = n * torch.softmax(theta, dim=0)
     first = channels[0, :, :n]
@@ -468,10 +459,6 @@ class WeightMemory(TensorStateModule):
         self.count = (
             None if self.features is None else torch.as_tensor(0.0 if count is None else count).to(self.features)
         )
-
-    def load_legacy_state(self, state: dict[str, Any]) -> None:
-        self.features, self.logits = state["features"], state["logits"]
-        self.count = torch.tensor(float(state["updates"])).to(self.features)
 
     def _apply(self, fn, recurse=True):  # type: ignore[no-untyped-def]
         # .to(device) moves the remembered tensors, which are not parameters or buffers.

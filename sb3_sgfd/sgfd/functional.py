@@ -22,6 +22,7 @@ from sb3_sgfd.common.validation import (
     check_positive_int,
 )
 from sb3_sgfd.sgfd.checks import check_domains, check_probs, check_weights
+from sb3_sgfd.sgfd.classifier import DomainClassifier, accuracy, classifier_round, saliency_probabilities
 from sb3_sgfd.sgfd.decorrelation import (
     COVARIANCES,
     WeightMemory,
@@ -33,7 +34,6 @@ from sb3_sgfd.sgfd.decorrelation import (
     scaled_loss_gradient,
     solve_weights,
 )
-from sb3_sgfd.sgfd.weighting import DomainClassifier, accuracy, classifier_round, saliency_probabilities
 
 
 def random_fourier_features(z: Tensor, n_features: int = 5, generator: torch.Generator | None = None) -> Tensor:
@@ -265,7 +265,7 @@ def train_classifier(
     batches: Iterable[tuple[Tensor, Tensor]],
     stop_accuracy: float | None = None,
 ) -> tuple[Tensor, int]:
-    """The domain classifier trained as Algorithm 1 does, batch after batch (:func:`sb3_sgfd.sgfd.weighting.
+    """The domain classifier trained as Algorithm 1 does, batch after batch (:func:`sb3_sgfd.sgfd.classifier.
     classifier_round` on each), stopping at the first batch that scores ``stop_accuracy`` before its step (a host
     read per batch): for analyses that train a classifier offline.
 
@@ -278,7 +278,7 @@ def train_classifier(
     scored, steps = torch.zeros(()), 0
     for z, domains in batches:
         scored, reached = classifier_round(classifier, optimizer, [(z, domains)], stop_accuracy)
-        if stop_accuracy is not None and bool(reached):
+        if reached:
             break
         steps += 1
     return scored, steps

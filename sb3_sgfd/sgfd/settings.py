@@ -165,6 +165,25 @@ class SGFDSettings:
         defaults = _OFFICIAL if reading == "official" else {}
         return cls(reading=reading, **{**defaults, **given})
 
+    @classmethod
+    def taken_from(cls, reading: str | None, sgfd: SGFDSettings | None, keywords: dict[str, Any]) -> SGFDSettings:
+        """The settings an ``SGFD_SAC`` is given: ``sgfd`` whole, or the reading's with the settings among
+        ``keywords`` over it. The settings are taken out of ``keywords`` (what remains is EncoderSAC's).
+
+        :param reading: ``"paper"`` or ``"official"``; None: ``sgfd``'s, else the paper's
+        :param sgfd: all the settings as one object (then no setting may be among ``keywords``)
+        :param keywords: keyword arguments, some of them settings (each a field of :class:`SGFDSettings`)
+        """
+        given = {name: keywords.pop(name) for name in setting_names() if name in keywords}
+        if sgfd is None:
+            return cls.of_reading(reading or "paper", **given)
+        if not isinstance(sgfd, SGFDSettings):
+            raise ValueError(f"sgfd must be an SGFDSettings, got {type(sgfd).__name__}")
+        clashing = sorted(name for name, value in given.items() if value is not None)
+        if clashing or reading not in (None, sgfd.reading):
+            raise ValueError(f"give SGFD's settings either as sgfd= or as keywords, not both: {clashing or 'reading'}")
+        return sgfd
+
     def solver_settings(self) -> SolverSettings:
         """The weight solver's keywords (both readings' solvers take them), in a new dict."""
         return {

@@ -1,6 +1,7 @@
-"""SGFD's sample weights, Algorithm 1 lines 6-17 in one place: the domain classifier and its rounds, the feature
-probabilities p(Z_i) from its saliency (section 4.2), and the weights (:mod:`sb3_sgfd.sgfd.decorrelation`), as two
-readings, each one entry point that ``SGFD_SAC`` calls once per gradient step:
+"""SGFD's sample weights, Algorithm 1 lines 6-17, as the sample weighting of the training loop
+(:class:`sb3_sgfd.common.sample_weighting.SampleWeighting`): the domain classifier and its rounds
+(:mod:`sb3_sgfd.sgfd.classifier`), the feature probabilities p(Z_i) from its saliency (section 4.2), and the weights
+(:mod:`sb3_sgfd.sgfd.decorrelation`), as two readings:
 
 - :class:`PaperWeighting` (``reading="paper"``): Algorithm 1 as printed, with this package's measured choices: from
   ``classifier_start``, a classifier round on every ``classifier_interval``-th update scores the batch and, while
@@ -11,27 +12,39 @@ readings, each one entry point that ``SGFD_SAC`` calls once per gradient step:
   fresh unaugmented batches, guided-backprop saliency, a memory of past batches, an objective that keeps the
   weights near uniform.
 
-Pure torch, no Stable-Baselines3 import. Every decision of a step is a tensor (the paper's whether-to-train and
-whether-ready are masks, :func:`sb3_sgfd.common.captured.masked_step`), except the official round's, which the
-algorithm takes on the host before the step (one read per round). Each weighting owns its classifier, optimiser and
-state, all in its ``state_dict``.
+Each step: :meth:`SGFDWeighting.plan` (on the host: is SGFD on, is a round due, which loss wants weights),
+``before_step`` (the reading's host work: fresh batches; the code reading's round), then
+:meth:`SGFDWeighting.loss_weights` inside the step: the reading's ``forward`` gives the weights w (n,), mean 1,
+detached, and the critic's loss (Algorithm 1 line 18, reweighted here as the design asks: ``reweight_critic``) and the
+actor's (line 19, eq. 8: ``reweight_actor``) take w as :class:`LossWeights`. A step decides on the host (the round
+only while below the threshold, the solver only once the weights are on; one host read), except a captured one
+(``compile_update`` on CUDA), which keeps every decision a tensor (masks): the same training without a host read.
+Pure torch, no Stable-Baselines3 import.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
-from typing import Any, NamedTuple, cast
+from typing import Any, NamedTuple
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 from torch.nn import functional as F
 
-from sb3_sgfd.common.captured import masked_step
-from sb3_sgfd.common.tensor_state import TensorStateModule
-from sb3_sgfd.common.validation import check_matrix
-from sb3_sgfd.sgfd.checks import check_domains
+from sb3_sgfd.common.observations import user_stacklevel
+from sb3_sgfd.common.sample_weighting import LossWeights, SampleWeighting, WeightingAgent
+from sb3_sgfd.common.update_runner import UpdateRunner
+from sb3_sgfd.sgfd.classifier import (
+    DomainClassifier,
+    accuracy,
+    classifier_round,
+    masked_classifier_round,
+    saliency_probabilities,
+)
 from sb3_sgfd.sgfd.decorrelation import (
     WeightMemory,
+    draw_fourier,
     official_solution,
     paper_solution,
     solve_official_weights,
@@ -41,139 +54,16 @@ from sb3_sgfd.sgfd.settings import SGFDSettings
 
 #: The official reading's classifier batches are this many replay batches' worth of samples (640 at batch 128).
 CLASSIFIER_BATCHES = 5
-
-
-class DomainClassifier(nn.Module):
-    """MLP that predicts the training domain of a feature vector (paper Table 3: 2 hidden layers of 128, ReLU); the
-    official code's starts with orthogonal weights and zero biases.
-
-    :param n_features: dimension d of the features (50 for the paper's encoder)
-    :param n_domains: number K of training domains
-    :param hidden_dim: width of the two hidden layers
-    :param orthogonal: the code's initialisation
-    """
-
-    def __init__(self, n_features: int, n_domains: int, hidden_dim: int = 128, orthogonal: bool = False) -> None:
-        super().__init__()
-        sizes = (("n_features", n_features, 1), ("n_domains", n_domains, 2), ("hidden_dim", hidden_dim, 1))
-        for name, value, low in sizes:
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
-        self.n_features, self.n_domains = n_features, n_domains
-        self.net = nn.Sequential(
-            nn.Linear(n_features, hidden_dim),
-            nn.ReLU(),
-            nn.Linear(hidden_dim, hidden_dim),
-            nn.ReLU(),
-            nn.Linear(hidden_dim, n_domains),
-        )
-        if orthogonal:
-            for layer in self.net:
-                if isinstance(layer, nn.Linear):
-                    nn.init.orthogonal_(layer.weight)
-                    nn.init.zeros_(layer.bias)
-
-    def forward(self, z: Tensor) -> Tensor:
-        """:param z: features (n, n_features)
-        :return: domain logits (n, n_domains)"""
-        if z.dim() != 2 or z.shape[1] != self.n_features:
-            raise ValueError(f"z must have shape (n, {self.n_features}), got {tuple(z.shape)}")
-        return self.net(z)
-
-    def probabilities(self, z: Tensor) -> Tensor:
-        """The code's classifier output: softmax probabilities (n, K)."""
-        return torch.softmax(self(z), dim=1)
-
-    def _layers(self) -> tuple[nn.Linear, nn.Linear, nn.Linear]:
-        return cast(tuple[nn.Linear, nn.Linear, nn.Linear], tuple(self.net[index] for index in (0, 2, 4)))
-
-    def input_gradient(self, z: Tensor, domains: Tensor | None = None) -> Tensor:
-        """d f_k(z_k) / d z_k for each sample, f_k the logit of its predicted (or given) domain (n, d), without grad.
-
-        :param z: features (n, n_features)
-        :param domains: the domain whose logit to differentiate per sample; None: the predicted one
-        """
-        return self.predictions_and_input_gradient(z, domains)[1]
-
-    def predictions_and_input_gradient(self, z: Tensor, domains: Tensor | None = None) -> tuple[Tensor, Tensor]:
-        """The predicted domains (n,) and ``input_gradient`` from one forward pass, in closed form: through the ReLU
-        network the gradient is W1^T [h1 > 0] W2^T [h2 > 0] w3_k (the tests compare it with autograd)."""
-        first, second, last = self._layers()
-        with torch.no_grad():
-            h1 = first(z).clamp_min(0)
-            h2 = second(h1).clamp_min(0)
-            predicted = last(h2).argmax(dim=1)
-            target = predicted if domains is None else domains.to(z.device).long()
-            g2 = last.weight[target] * (h2 > 0)
-            g1 = (g2 @ second.weight) * (h1 > 0)
-            return predicted, g1 @ first.weight
-
-    def guided_saliency(self, z: Tensor) -> Tensor:
-        """Guided backpropagation of each class's probability to z, averaged over the classes: (n, d), without
-        grad. Through a ReLU the gradient passes where the unit was active and the gradient is positive (Springenberg
-        et al.); in closed form for this network (the tests compare it with autograd through guided ReLUs)."""
-        first, second, last = self._layers()
-        with torch.no_grad():
-            pre1 = first(z)
-            pre2 = second(pre1.clamp_min(0))
-            probs = torch.softmax(last(pre2.clamp_min(0)), dim=1)
-            eye = torch.eye(probs.shape[1], dtype=probs.dtype, device=probs.device)
-            # d probs_t / d logits = probs_t (e_t - probs), for every target class t: (K, n, K)
-            upstream = probs.T.unsqueeze(2) * (eye.unsqueeze(1) - probs.unsqueeze(0))
-            hidden2 = (upstream @ last.weight).clamp_min(0) * (pre2 > 0)
-            hidden1 = (hidden2 @ second.weight).clamp_min(0) * (pre1 > 0)
-            return (hidden1 @ first.weight).mean(dim=0)
-
-
-def accuracy(predicted: Tensor, domains: Tensor) -> Tensor:
-    """Fraction of the predicted domains (n,) that are the true ones (n,), as a 0-d tensor on their device."""
-    return (predicted == domains.to(predicted.device)).float().mean()
-
-
-def saliency_probabilities(saliency: Tensor, temperature: float, normalize: bool, smoothing: float) -> Tensor:
-    """p(Z_i) = (1 - smoothing) softmax_i(M_i / temperature) + smoothing / d from the saliency M (d,), divided by its
-    largest entry first when ``normalize`` is on (see :func:`feature_probabilities`); without grad."""
-    if normalize:
-        saliency = saliency / saliency.max().clamp_min(torch.finfo(saliency.dtype).tiny)
-    probs = torch.softmax(saliency / temperature, dim=0)
-    return ((1 - smoothing) * probs + smoothing / probs.numel()).detach()
-
-
-def classifier_round(
-    classifier: nn.Module,
-    optimizer: torch.optim.Optimizer,
-    batches: Sequence[tuple[Tensor, Tensor]],
-    stop_accuracy: float | None = None,
-) -> tuple[Tensor, Tensor]:
-    """The paper's classifier round (Algorithm 1, lines 7-13), decided on the device: each batch is scored first, and
-    training stops at the first one classified with accuracy >= ``stop_accuracy`` (its step and the later ones are
-    masked off); otherwise a cross-entropy step on it. Scoring before the step makes the accuracy a held-out
-    estimate.
-
-    :param classifier: domain classifier, (n, d) -> (n, K) logits
-    :param optimizer: optimiser of the classifier's parameters
-    :param batches: (features (n, d), domain labels (n,)) pairs, e.g. detached encoder features
-    :param stop_accuracy: accuracy that ends training; None trains on every batch
-    :return: the last batch's accuracy (0-d), and whether the threshold was reached (0-d bool)
-    """
-    training, scored = None, None
-    for z, domains in batches:
-        check_matrix(z, "z")
-        check_domains(domains, z.shape[0])
-        logits = classifier(z)  # one forward pass scores the batch and, below the threshold, trains on it
-        scored = accuracy(logits.detach().argmax(dim=1), domains)
-        below = scored < stop_accuracy if stop_accuracy is not None else scored.new_ones((), dtype=torch.bool)
-        training = below if training is None else training & below
-        optimizer.zero_grad()
-        F.cross_entropy(logits, domains).backward()
-        masked_step(optimizer, training)
-    if scored is None or training is None:
-        raise ValueError("a classifier round needs at least one batch")
-    return scored, ~training
+#: The figures of the weights themselves, logged over the steps where the weights are in use.
+WEIGHT_FIGURES = ("weight_ess", "weight_min", "weight_max", "decorrelation_loss_before", "decorrelation_loss_after")
+SINGLE_DOMAIN_WARNING = (
+    "SGFD_SAC sees a single domain, so there is nothing to decorrelate; it trains as plain SAC. Give it "
+    "one sub-env per domain, e.g. sgfd_envs.make_domain_vec_env(env_id, split='train')."
+)
 
 
 class WeightingPlan(NamedTuple):
-    """The host's decisions of a weighting for one gradient step (part of the step's plan).
+    """SGFD's decisions for one gradient step (its share of the step's plan).
 
     :param classifier_round: a classifier round is due
     :param weights_wanted: a loss is weighted at this step (else only the classifier's work is done)
@@ -184,11 +74,11 @@ class WeightingPlan(NamedTuple):
 
 
 class Weights(NamedTuple):
-    """A weighting's answer for one batch.
+    """A reading's answer for one batch.
 
     :param weights: (n,) non-negative weights with mean 1, without grad; None: unweighted at this step
     :param figures: diagnostics to log, 0-d tensors on the device
-    :param weighted: 0-d bool, whether the weights are in use (the weight figures are logged only then)
+    :param weighted: 0-d bool, whether the weights are in use (the weight figures count only then); None: in use
     """
 
     weights: Tensor | None
@@ -197,7 +87,7 @@ class Weights(NamedTuple):
 
 
 def weight_figures(weights: Tensor, loss_before: Tensor, loss_after: Tensor, probs: Tensor | None) -> dict[str, Tensor]:
-    """The figures SGFD_SAC logs of a batch's weights, as 0-d tensors."""
+    """The figures SGFD logs of a batch's weights, as 0-d tensors."""
     figures = {
         "weight_ess": weights.sum().square() / weights.square().sum() / len(weights),  # Kish's ESS over n
         "weight_min": weights.min(),
@@ -210,12 +100,12 @@ def weight_figures(weights: Tensor, loss_before: Tensor, loss_after: Tensor, pro
     return figures
 
 
-class SampleWeighting(TensorStateModule):
-    """What the two readings share: settings, classifier, optimiser, memory, the RFF generator, the compiled
-    solver. A reading implements ``forward`` and ``solve``.
+class SGFDWeighting(SampleWeighting):
+    """What the two readings share: settings, classifier, optimiser, memory, the RFF generator, the compiled solver,
+    and the slot's calls. A reading implements ``reading_plan``, ``before_step``, ``forward`` and ``solve``.
 
     :param n_features: dimension d of the features z
-    :param n_domains: number of domain labels (the classifier's classes)
+    :param n_domains: number of domain labels (the classifier's classes; one: nothing to decorrelate)
     :param settings: SGFD's settings (:class:`sb3_sgfd.sgfd.settings.SGFDSettings`)
     :param seed: seeds the RFF generator once (a checkpoint saves its state)
     :param device: where the classifier and the generator live
@@ -247,24 +137,73 @@ class SampleWeighting(TensorStateModule):
         self.core = torch.compile(core, dynamic=False) if compile_solver else core
         #: Whether the weights are on (the paper's reading waits for its classifier; sticky), a 0-d bool tensor.
         self.ready = torch.tensor(self.official, device=device)
+        #: One domain (given, or all the buffer holds when SGFD starts): nothing to decorrelate, SAC's steps.
+        self.single_domain = n_domains == 1
+        self._domains_checked = False
+        #: The paper reading's further classifier batches of this step (sampled before it, encoded inside it).
+        self._fresh: list[Any] = []
 
     def active(self, num_timesteps: int) -> bool:
         """Whether the weighting does anything yet (before that, SGFD_SAC is SAC)."""
         return True
 
-    def plan(self, update_index: int, num_timesteps: int, weights_wanted: bool) -> WeightingPlan:
-        """The host's decisions for the update ``update_index``."""
+    def recheck_domains(self) -> None:
+        """The envs give more domain labels now: look at the buffer's again when SGFD next starts."""
+        self.single_domain, self._domains_checked = False, False
+
+    def reading_plan(self, update_index: int, num_timesteps: int, weights_wanted: bool) -> WeightingPlan:
+        """The reading's decisions for the update ``update_index``."""
         raise NotImplementedError
 
+    def plan(self, agent: WeightingAgent, update_index: int, update_actor: bool) -> tuple:
+        """SGFD's decisions for the step; empty (SAC's step) before it starts or with a single domain."""
+        if self.single_domain or not self.active(agent.num_timesteps):
+            return ()
+        if not self._domains_checked:
+            # Once, when the weighting starts: stored_domains() reads the whole buffer.
+            self._domains_checked = True
+            if len(agent.replay_buffer.stored_domains()) < 2:
+                warnings.warn(SINGLE_DOMAIN_WARNING, stacklevel=user_stacklevel())
+                self.single_domain = True
+                return ()
+        settings = self.settings
+        weights_wanted = settings.reweight_critic or (settings.reweight_actor and update_actor)
+        return self.reading_plan(update_index, agent.num_timesteps, weights_wanted)
+
+    def loss_weights(
+        self, agent: WeightingAgent, runner: UpdateRunner, replay_data: Any, z: Tensor, plan: tuple
+    ) -> LossWeights:
+        """The reading's weights of this batch as (n, 1) weights of the critic's and of the actor's losses (None where
+        that loss is not reweighted or no weights are in use; the actor's alone are not computed on the steps it
+        does not learn), its figures recorded."""
+        if not plan:
+            return LossWeights()
+        fresh = [(agent.encode(agent.augment(batch.observations)[0]), checked(batch.domains)) for batch in self._fresh]
+        weights, figures, weighted = self(z, checked(replay_data.domains), plan, fresh, masked=runner.masked)
+        for key, value in figures.items():
+            agent.record(f"sgfd/{key}", value, when=weighted if key in WEIGHT_FIGURES else None)
+        if weights is None:
+            return LossWeights()
+        runner.figures.keep("sgfd/weights", weights, when=weighted)  # the weights' histogram (TensorBoard)
+        weights = weights.reshape(-1, 1)
+        settings = self.settings
+        return LossWeights(weights if settings.reweight_critic else None, weights if settings.reweight_actor else None)
+
     def forward(
-        self, z: Tensor, domains: Tensor, plan: WeightingPlan, fresh: Sequence[tuple[Tensor, Tensor]] = ()
+        self,
+        z: Tensor,
+        domains: Tensor,
+        plan: WeightingPlan,
+        fresh: Sequence[tuple[Tensor, Tensor]] = (),
+        masked: bool = True,
     ) -> Weights:
-        """The weights of one batch, and the classifier's work of this step, without a host read.
+        """The weights of one batch, and the classifier's work of this step.
 
         :param z: the critic's (detached) encoder features of the batch, (n, d)
         :param domains: the batch's domain labels, (n,)
-        :param plan: the host's decisions for this step
+        :param plan: the decisions for this step
         :param fresh: the paper reading's further classifier batches (features, labels)
+        :param masked: decide on the device (captured steps); False: Python branches
         """
         raise NotImplementedError
 
@@ -274,6 +213,9 @@ class SampleWeighting(TensorStateModule):
         decorrelation loss at uniform weights and at the weights."""
         raise NotImplementedError
 
+    def generators(self) -> dict[str, torch.Generator]:
+        return {"weights": self.rff_generator}
+
     def state_tensors(self) -> dict[str, Tensor]:
         return {} if self.official else {"ready": self.ready.float()}
 
@@ -281,15 +223,20 @@ class SampleWeighting(TensorStateModule):
         if "ready" in tensors:
             self.ready = tensors["ready"].to(self.ready.device) > 0.5
 
-    def load_legacy_state(self, state: dict[str, Any]) -> None:
-        self.ready = torch.tensor(bool(state["ready"]), device=self.ready.device)
-
     def _apply(self, fn, recurse=True):  # type: ignore[no-untyped-def]
         self.ready = fn(self.ready)
         return super()._apply(fn, recurse)
 
 
-class PaperWeighting(SampleWeighting):
+def checked(domains: Tensor | None) -> Tensor:
+    """A batch's domain labels (their values were checked where they entered: the buffer refuses a label out of
+    range)."""
+    if domains is None:
+        raise ValueError("SGFD_SAC needs replay samples with domain labels (use DomainReplayBuffer)")
+    return domains
+
+
+class PaperWeighting(SGFDWeighting):
     """The paper's reading of SGFD's weights (``SGFD_SAC(reading="paper")``, the default); its settings' defaults
     are :meth:`sb3_sgfd.sgfd.settings.SGFDSettings.paper`. The classifier steps with Adam."""
 
@@ -300,37 +247,91 @@ class PaperWeighting(SampleWeighting):
     def active(self, num_timesteps: int) -> bool:
         return num_timesteps >= self.settings.classifier_start
 
-    def plan(self, update_index: int, num_timesteps: int, weights_wanted: bool) -> WeightingPlan:
+    def reading_plan(self, update_index: int, num_timesteps: int, weights_wanted: bool) -> WeightingPlan:
         settings = self.settings
         classifier_round = settings.classifier_iters > 0 and update_index % settings.classifier_interval == 0
         return WeightingPlan(classifier_round, weights_wanted)
 
+    def before_step(
+        self, agent: WeightingAgent, runner: UpdateRunner, replay_data: Any, observations: list[Tensor], plan: tuple
+    ) -> None:
+        """A round's further batches (Algorithm 1's up to ``classifier_iters`` updates), sampled for the step to
+        encode: sampled whether or not the round trains, so that both ways of deciding draw the same batches."""
+        due = bool(plan) and WeightingPlan(*plan).classifier_round
+        n = len(replay_data.actions)
+        self._fresh = (
+            [agent.fresh_batch(f"sgfd fresh {i}", n) for i in range(self.settings.classifier_iters - 1)] if due else []
+        )
+
     def forward(
-        self, z: Tensor, domains: Tensor, plan: WeightingPlan, fresh: Sequence[tuple[Tensor, Tensor]] = ()
+        self,
+        z: Tensor,
+        domains: Tensor,
+        plan: WeightingPlan,
+        fresh: Sequence[tuple[Tensor, Tensor]] = (),
+        masked: bool = True,
     ) -> Weights:
         # Line 12's p(Z_i) and the batch's accuracy from one pass of the classifier as it was before this step
         predicted, gradient = self.classifier.predictions_and_input_gradient(z)
         figures = {"classifier_accuracy": accuracy(predicted, domains)}
-        was_ready = self.ready.clone()
+        if masked:
+            return self._masked_forward(z, domains, plan, fresh, gradient, figures)
+        # The step's one host read: the batch's accuracy (at the threshold, the round has nothing to train) and whether
+        # the weights are on
+        batch_accuracy, ready_before = torch.stack([figures["classifier_accuracy"], self.ready.float()]).tolist()
+        was_ready = ready = ready_before > 0.5
+        threshold = self.settings.accuracy_threshold
         if plan.classifier_round:  # lines 6-13: train while below the threshold; the first time at it, ready
-            reached = classifier_round(
-                self.classifier, self.classifier_optimizer, [(z, domains), *fresh], self.settings.accuracy_threshold
-            )[1]
+            batches = [(z, domains), *fresh]
+            reached = batch_accuracy >= threshold
+            if not reached:
+                reached = classifier_round(self.classifier, self.classifier_optimizer, batches, threshold, 1)[1]
+            if reached and not ready:
+                self.ready.fill_(True)
+                ready = True
+        if not plan.weights_wanted:
+            return Weights(None, figures)
+        if not ready:
+            self._skip_draws(z)  # the draws a masked step would make: the same random stream either way
+            return Weights(None, figures)
+        probs = None
+        if self.settings.use_saliency:  # ready before this step: its p; ready now: the classifier's after the round
+            probs = self._probabilities(gradient if was_ready else self.classifier.input_gradient(z))
+        weights, before, after = self._solve(z, probs, self.rff_generator, update_memory=True, take=None)
+        return Weights(weights, {**figures, **weight_figures(weights, before, after, probs)})
+
+    def _masked_forward(
+        self,
+        z: Tensor,
+        domains: Tensor,
+        plan: WeightingPlan,
+        fresh: Sequence[tuple[Tensor, Tensor]],
+        gradient: Tensor,
+        figures: dict[str, Tensor],
+    ) -> Weights:
+        """:meth:`forward` with every decision a tensor: the round's steps masked, the solver always run and its
+        weights taken where the weights are on."""
+        was_ready = self.ready.clone()
+        if plan.classifier_round:
+            batches = [(z, domains), *fresh]
+            reached = masked_classifier_round(
+                self.classifier, self.classifier_optimizer, batches, self.settings.accuracy_threshold
+            )
             self.ready.copy_(self.ready | reached)  # in place: a captured graph reads and writes it there
         if not plan.weights_wanted:
             return Weights(None, figures)
         probs = None
-        if self.settings.use_saliency:  # ready before this step: its p; ready now: the classifier's after the round
+        if self.settings.use_saliency:
             probs = self._probabilities(gradient)
             if plan.classifier_round:
                 probs = torch.where(was_ready, probs, self._probabilities(self.classifier.input_gradient(z)))
-        weights, before, after = self._solve(z, probs, self.rff_generator, update_memory=True)
+        weights, before, after = self._solve(z, probs, self.rff_generator, update_memory=True, take=self.ready)
         weights = torch.where(self.ready, weights, torch.ones_like(weights))  # lines 14-17 once ready
         return Weights(weights, {**figures, **weight_figures(weights, before, after, probs)}, self.ready)
 
     def solve(self, z: Tensor, generator: torch.Generator | None = None) -> tuple[Tensor, Tensor, Tensor]:
         probs = self._probabilities(self.classifier.input_gradient(z)) if self.settings.use_saliency else None
-        return self._solve(z, probs, generator, update_memory=False)
+        return self._solve(z, probs, generator, update_memory=False, take=None)
 
     def _probabilities(self, gradient: Tensor) -> Tensor:
         settings = self.settings
@@ -338,8 +339,18 @@ class PaperWeighting(SampleWeighting):
             gradient.abs().mean(dim=0), settings.saliency_temperature, True, settings.saliency_smoothing
         )
 
+    def _skip_draws(self, z: Tensor) -> None:
+        if self.settings.use_rff:
+            shape = (z.shape[1], self.settings.n_rff)
+            draw_fourier(shape, shape, z, self.rff_generator)
+
     def _solve(
-        self, z: Tensor, probs: Tensor | None, generator: torch.Generator | None, update_memory: bool
+        self,
+        z: Tensor,
+        probs: Tensor | None,
+        generator: torch.Generator | None,
+        update_memory: bool,
+        take: Tensor | None,
     ) -> tuple[Tensor, Tensor, Tensor]:
         return solve_weights(
             z,
@@ -347,13 +358,13 @@ class PaperWeighting(SampleWeighting):
             memory=self.memory,
             update_memory=update_memory,
             generator=generator,
-            take=self.ready,
+            take=take,
             core=self.core,
             **self.solver_settings,
         )
 
 
-class OfficialWeighting(SampleWeighting):
+class OfficialWeighting(SGFDWeighting):
     """The authors' code's reading of SGFD's weights (``SGFD_SAC(reading="official")``); its settings' defaults are
     :meth:`sb3_sgfd.sgfd.settings.SGFDSettings.official`. The classifier (orthogonal start) steps with SGD (momentum
     0.9, weight decay 1e-4) on the cross-entropy of its softmax output (a double softmax, as the code)."""
@@ -366,7 +377,7 @@ class OfficialWeighting(SampleWeighting):
             self.classifier.parameters(), lr=self.settings.classifier_lr, momentum=0.9, weight_decay=1e-4
         )
 
-    def plan(self, update_index: int, num_timesteps: int, weights_wanted: bool) -> WeightingPlan:
+    def reading_plan(self, update_index: int, num_timesteps: int, weights_wanted: bool) -> WeightingPlan:
         settings = self.settings
         classifier_round = (
             weights_wanted
@@ -375,6 +386,24 @@ class OfficialWeighting(SampleWeighting):
             and update_index % settings.classifier_interval == 0
         )
         return WeightingPlan(classifier_round, weights_wanted)
+
+    def before_step(
+        self, agent: WeightingAgent, runner: UpdateRunner, replay_data: Any, observations: list[Tensor], plan: tuple
+    ) -> None:
+        """The code's round, before the step: the batch is scored, and below the threshold (the round's one host read)
+        the classifier trains on ``classifier_iters`` fresh unaugmented batches of ``CLASSIFIER_BATCHES`` x n."""
+        if not plan or not WeightingPlan(*plan).classifier_round:
+            return
+        domains = checked(replay_data.domains)
+        score = runner.run("sgfd score", lambda obs: self.score(agent.encode(obs), domains), observations[0])
+        if bool(score < self.settings.accuracy_threshold):
+            n = CLASSIFIER_BATCHES * len(replay_data.actions)
+            batches = [agent.fresh_batch(f"sgfd round {i}", n) for i in range(self.settings.classifier_iters)]
+            runner.run("sgfd round", self.train_round_on, agent, batches)
+
+    def train_round_on(self, agent: WeightingAgent, batches: Sequence[Any]) -> None:
+        """:meth:`train_round` on replay batches, encoded by the critic's encoder."""
+        self.train_round([(agent.encode(batch.observations), checked(batch.domains)) for batch in batches])
 
     def score(self, z: Tensor, domains: Tensor) -> Tensor:
         """The classifier's accuracy on a batch (0-d): below the threshold, a round trains it (the host decides)."""
@@ -390,14 +419,20 @@ class OfficialWeighting(SampleWeighting):
             self.classifier_optimizer.step()
 
     def forward(
-        self, z: Tensor, domains: Tensor, plan: WeightingPlan, fresh: Sequence[tuple[Tensor, Tensor]] = ()
+        self,
+        z: Tensor,
+        domains: Tensor,
+        plan: WeightingPlan,
+        fresh: Sequence[tuple[Tensor, Tensor]] = (),
+        masked: bool = True,
     ) -> Weights:
         accuracy_now = self.score(z, domains)  # after this step's round, if one trained
         figures = {"classifier_accuracy": accuracy_now}
         if not plan.weights_wanted:
             return Weights(None, figures)
+        # the solver runs whatever the accuracy: its memory moves at every step, as the code's
         weights, before, after, probs = self._weights(z, self.rff_generator, update_memory=True)
-        # The code reweights whenever the batch's accuracy is above 0 (a tensor choice: no host read).
+        # The code reweights whenever the batch's accuracy is above 0 (a tensor choice either way: one where)
         weighted = accuracy_now > 0
         weights = torch.where(weighted, weights, torch.ones_like(weights))
         return Weights(weights, {**figures, **weight_figures(weights, before, after, probs)}, weighted)
@@ -432,4 +467,4 @@ class OfficialWeighting(SampleWeighting):
 
 
 #: The weighting of each reading (``SGFDSettings.reading``).
-READINGS: dict[str, type[SampleWeighting]] = {"paper": PaperWeighting, "official": OfficialWeighting}
+READINGS: dict[str, type[SGFDWeighting]] = {"paper": PaperWeighting, "official": OfficialWeighting}

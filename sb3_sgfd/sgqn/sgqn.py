@@ -178,7 +178,6 @@ class SGQN(EncoderSAC):
         policy: Any,
         env: Any,
         *,
-        representation: str | None = "sgqn",
         encoder_tau: float | None = 0.05,
         actor_update_interval: int = 2,
         augmentation_views: int = 1,
@@ -187,7 +186,6 @@ class SGQN(EncoderSAC):
         super().__init__(
             policy,
             env,
-            representation=representation,
             encoder_tau=encoder_tau,
             actor_update_interval=actor_update_interval,
             augmentation_views=augmentation_views,

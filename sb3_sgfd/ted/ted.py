@@ -72,7 +72,6 @@ class TED(EncoderSAC):
         policy: Any,
         env: Any,
         *,
-        representation: str | None = "ted",
         actor_update_interval: int = 2,
         augmentation_views: int = 1,
         **kwargs: Any,
@@ -80,7 +79,6 @@ class TED(EncoderSAC):
         super().__init__(
             policy,
             env,
-            representation=representation,
             actor_update_interval=actor_update_interval,
             augmentation_views=augmentation_views,
             **kwargs,

@@ -110,7 +110,7 @@ def tensors_of(model) -> dict[str, th.Tensor]:
     for index, optimizer in enumerate(optimizers):
         for state in optimizer.state.values():
             found |= {f"optimizer {index}.{k}": v for k, v in state.items() if th.is_tensor(v) and k != "step"}
-    found |= {"figures.update": model._figures.update, "weighting.ready": model.weighting.ready}
+    found |= {"figures.update": model._update.figures.update, "weighting.ready": model.weighting.ready}
     return found
 
 
@@ -129,12 +129,12 @@ def test_the_papers_agent_trains_with_every_tensor_on_its_device(device):
     model = SGFD_SAC(AMBSPolicy, env, representation="ambs", augmentation_views=2, **settings, **kwargs)
     model.learn(240)
     assert bool(model.weighting.ready), "the weights never started"
-    model._log_figures()
+    model._update.log_figures(model.logger)
     assert 0 < model.logger.name_to_value["sgfd/weight_ess"] <= 1
     wrong = {name: str(t.device) for name, t in tensors_of(model).items() if t.device.type != device}
     assert not wrong, wrong
     assert model.replay_buffer._batch_transfer.device.type == device
-    assert bool(model._update.graphs) == (device == "cuda")  # the step replayed as graphs on CUDA
+    assert bool(model._update.pieces.graphs) == (device == "cuda")  # the step replayed as graphs on CUDA
     baseline = AMBS(AMBSPolicy, env, **kwargs)
     baseline.learn(120)
-    assert bool(baseline._update.graphs) == (device == "cuda")
+    assert bool(baseline._update.pieces.graphs) == (device == "cuda")

@@ -302,12 +302,12 @@ def test_same_episode_observations_are_normalized_like_observations():
     buffer = make_buffer(slots=8, n_envs=1, frame_stack=2)
     Schedule(buffer, [[8]]).add(8)
     raw = buffer._get_samples(np.arange(8), env_indices=np.zeros(8, dtype=int))
-    buffer._negatives_rng = np.random.default_rng(0)
+    buffer.episode_index.rng = np.random.default_rng(0)
     fake = SimpleNamespace(normalize_obs=lambda obs: obs * 2 - 1, normalize_reward=lambda reward: reward)
     normalized = buffer._get_samples(np.arange(8), env=fake, env_indices=np.zeros(8, dtype=int))
     assert th.equal(normalized.observations, raw.observations * 2 - 1)
     # Same draw again, so the same observations, normalized.
-    buffer._negatives_rng = np.random.default_rng(0)
+    buffer.episode_index.rng = np.random.default_rng(0)
     again = buffer._get_samples(np.arange(8), env_indices=np.zeros(8, dtype=int))
     assert th.equal(normalized.same_episode_observations, again.same_episode_observations * 2 - 1)
 
@@ -318,9 +318,12 @@ def test_pickle_round_trip_keeps_episodes_and_draws(frame_stack: int | None):
     schedule = Schedule(buffer, [[4, 9], [20]])
     schedule.add(9)
     loaded = pickle.loads(pickle.dumps(buffer))
-    for name in ("episodes", "_episode_first", "_episode_last", "_current_episode", "_episode_open"):
-        np.testing.assert_array_equal(getattr(loaded, name), getattr(buffer, name), err_msg=name)
-    assert (loaded._n_adds, loaded._n_episodes) == (buffer._n_adds, buffer._n_episodes)
+    for name in ("episodes", "first", "last", "current", "open"):
+        np.testing.assert_array_equal(
+            getattr(loaded.episode_index, name), getattr(buffer.episode_index, name), err_msg=name
+        )
+    index, loaded_index = buffer.episode_index, loaded.episode_index
+    assert (loaded_index.n_adds, loaded_index.n_episodes) == (index.n_adds, index.n_episodes)
     np.random.seed(2)
     expected = buffer.sample(32)
     np.random.seed(2)
@@ -331,35 +334,6 @@ def test_pickle_round_trip_keeps_episodes_and_draws(frame_stack: int | None):
     newest, before = loaded.pos - 1, loaded.pos - 2
     ids = loaded.episode_ids(np.array([newest, before]), np.array([1, 1]))
     assert ids[0] == ids[1]
-    check_negatives(schedule, loaded.sample(64))
-
-
-@pytest.mark.parametrize(("frame_stack", "n_adds"), [(None, 0), (None, 5), (None, 17), (3, 17)])
-def test_buffer_pickled_before_episode_tracking_rebuilds_it(frame_stack: int | None, n_adds: int):
-    buffer = make_buffer(slots=8, n_envs=2, frame_stack=frame_stack, negatives=False)
-    schedule = Schedule(buffer, [[3, 6], [2, 11]])
-    schedule.add(n_adds)
-    expected = dict(buffer.__dict__)
-    for name in ("same_episode_negatives", "_negatives_rng", "episodes", "_episode_first", "_episode_last"):
-        del buffer.__dict__[name]
-    for name in ("_n_episodes", "_n_adds", "_current_episode", "_episode_open"):
-        del buffer.__dict__[name]
-    loaded = pickle.loads(pickle.dumps(buffer))
-    assert loaded.same_episode_negatives is False
-    if n_adds > 0:
-        assert loaded.sample(4).same_episode_observations is None
-    stored = np.arange(min(n_adds, 8))
-    for env in range(2):
-        envs = np.full(len(stored), env)
-        # Same partition into episodes as the tracked buffer's.
-        ids, tracked = loaded.episode_ids(stored, envs), expected["episodes"][stored, env]
-        assert len(set(zip(ids.tolist(), tracked.tolist(), strict=True))) == len(set(tracked.tolist()))
-        assert len(set(ids.tolist())) == len(set(tracked.tolist()))
-    np.testing.assert_array_equal(loaded._episode_open, expected["_episode_open"])
-    # It goes on tracking: with negatives switched on, draws satisfy the oracle.
-    schedule.buffer = loaded
-    schedule.add(3)
-    loaded.same_episode_negatives, loaded._negatives_rng = True, np.random.default_rng(0)
     check_negatives(schedule, loaded.sample(64))
 
 

@@ -25,7 +25,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecFrameStack, VecTransposeImage
 
-import sb3_sgfd.common.buffers.storage as buffer_storage
+import sb3_sgfd.common.buffers.replay as buffer_replay
 from sb3_sgfd.common.buffers import DomainReplayBuffer
 
 # Larger than any k * c stacked here, so that SB3 sees the stacks as channel-last images; not square, so
@@ -273,7 +273,7 @@ def test_sac_collection_fills_the_frame_buffer_exactly():
     assert isinstance(model.get_env(), VecTransposeImage)
     model.learn(total_timesteps=60)
     framed = model.replay_buffer
-    assert isinstance(framed, TwinnedFrameBuffer) and framed.full and framed.side_frames
+    assert isinstance(framed, TwinnedFrameBuffer) and framed.full and framed.frame_store.side_frames
 
     _, slot_idx, env_idx = stored_pairs(framed, 30)
     sampleable = framed.is_sampleable(slot_idx, env_idx)
@@ -301,26 +301,14 @@ def test_pickled_frame_buffer_samples_and_continues_identically():
     assert_same_samples(expected, loaded.sample(64))
 
     # The same env goes on: the loaded buffer sees a continuation, not a new episode.
-    side_before = set(loaded.side_frames)
+    side_before = set(loaded.frame_store.side_frames)
     store((plain, loaded), 1)
-    assert set(loaded.side_frames) - side_before == set()
+    assert set(loaded.frame_store.side_frames) - side_before == set()
     store((plain, loaded), 12)
     _, slot_idx, env_idx = stored_pairs(loaded, 26)
     sampleable = loaded.is_sampleable(slot_idx, env_idx)
     slots, envs = slot_idx[sampleable], env_idx[sampleable]
     assert_same_samples(plain._get_samples(slots, env_indices=envs), loaded._get_samples(slots, env_indices=envs))
-
-
-def test_buffer_pickled_before_frame_stack_existed_still_loads():
-    plain, _ = make_pair(slots=4, n_envs=1, n_stack=2, channels=1)
-    obs = np.zeros((1, 2, HEIGHT, WIDTH), dtype=np.uint8)
-    plain.add(obs, obs, np.zeros((1, 2)), np.ones(1), np.zeros(1), [{}])
-    del plain.__dict__["frame_stack"]
-    loaded = pickle.loads(pickle.dumps(plain))
-    assert loaded.frame_stack is None
-    loaded.add(obs + 1, obs + 2, np.zeros((1, 2)), np.ones(1), np.zeros(1), [{}])
-    batch = loaded._get_samples(np.array([1]), env_indices=np.zeros(1, dtype=int))
-    assert th.equal(batch.next_observations, th.as_tensor(obs + 2))
 
 
 def test_resuming_with_a_fresh_env_mid_episode_stays_exact():
@@ -330,8 +318,8 @@ def test_resuming_with_a_fresh_env_mid_episode_stays_exact():
         plain, framed, lambda offset: stacked_venv(2, 3, 1, plans, seed=offset), n_steps=12, cuts=frozenset({7})
     )
     # Both episodes were cut after the transition in slot 6: its next frames went to the side store.
-    assert set(framed.side_frames) == {(6, 0), (6, 1)}
-    assert framed.history[7].tolist() == [0, 0]
+    assert set(framed.frame_store.side_frames) == {(6, 0), (6, 1)}
+    assert framed.frame_store.history[7].tolist() == [0, 0]
     _, slot_idx, env_idx = stored_pairs(framed, 12)
     assert framed.is_sampleable(slot_idx, env_idx).all()
     assert_same_samples(
@@ -391,7 +379,7 @@ def test_single_slot_buffer_stays_exact_across_episode_ends():
         OffPolicyAlgorithm._store_transition(algo, Tee(plain, framed), actions, new_obs, rewards, dones, infos)
         # Only a transition that starts its episode has its whole stack in a one-slot buffer.
         sampleable = framed.is_sampleable(slot, envs)
-        np.testing.assert_array_equal(sampleable, framed.history[0] == 0)
+        np.testing.assert_array_equal(sampleable, framed.frame_store.history[0] == 0)
         if sampleable.any():
             checked += int(sampleable.sum())
             assert_same_samples(
@@ -439,7 +427,7 @@ def test_memory_warning_counts_frames_not_stacks(monkeypatch: pytest.MonkeyPatch
     def build_with_available(available: int, frame_stack: int | None) -> list[warnings.WarningMessage]:
         fake = SimpleNamespace(virtual_memory=lambda: SimpleNamespace(available=available))
         monkeypatch.setattr(sb3_buffers, "psutil", fake)
-        monkeypatch.setattr(buffer_storage, "psutil", fake)
+        monkeypatch.setattr(buffer_replay, "psutil", fake)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             DomainReplayBuffer(1000, space, ACTION_SPACE, device="cpu", frame_stack=frame_stack)
@@ -505,7 +493,7 @@ def test_jump_inside_an_episode_is_rejected_and_leaves_the_buffer_unchanged():
     # Not the previous next_obs (0, 5, 6), and not a fresh episode either.
     with pytest.raises(ValueError, match="neither continues"):
         buffer.add(stack(0, 5, 7), stack(5, 7, 8), np.zeros((1, 2)), np.zeros(1), np.zeros(1), [{}])
-    assert buffer.pos == 1 and buffer.side_frames == {}
+    assert buffer.pos == 1 and buffer.frame_store.side_frames == {}
     buffer.add(stack(0, 5, 6), stack(5, 6, 7), np.zeros((1, 2)), np.zeros(1), np.zeros(1), [{}])
     batch = buffer._get_samples(np.array([0, 1]), env_indices=np.array([0, 0]))
     assert th.equal(batch.observations, th.as_tensor(np.concatenate([stack(0, 0, 5), stack(0, 5, 6)])))

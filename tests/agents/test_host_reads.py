@@ -10,6 +10,7 @@ import pytest
 import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import VecFrameStack, VecTransposeImage
+from torch.utils._python_dispatch import TorchDispatchMode
 
 import sgfd_envs
 from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, AMBSPolicy, CnnPolicy, DomainReplayBuffer, MlpPolicy
@@ -76,12 +77,14 @@ def sgfd(reading: str = "paper", phase: str = "steady", **kwargs) -> SGFD_SAC:
 
 def classifier_steps(model, gradient_steps: int) -> int:
     """The steps SGFD's classifier takes in ``gradient_steps`` gradient steps: the paper reading's Adam counts them
-    (a round's step masked off on the device counts none), the code reading's SGD steps only when the host says."""
+    (a round skipped on the host, or its step masked off on the device, counts none), the code reading's SGD steps
+    only when the host says."""
     optimizer = model.weighting.classifier_optimizer
     if isinstance(optimizer, torch.optim.Adam):
-        before = int(optimizer.state.get(next(model.classifier.parameters()), {}).get("step", 0))
+        parameter = next(model.classifier.parameters())
+        before = int(optimizer.state.get(parameter, {}).get("step", 0))
         model.train(gradient_steps=gradient_steps, batch_size=model.batch_size)
-        return int(optimizer.state[next(model.classifier.parameters())]["step"]) - before
+        return int(optimizer.state.get(parameter, {}).get("step", 0)) - before
     steps: list[int] = []
     handle = optimizer.register_step_post_hook(lambda *_: steps.append(1))
     try:
@@ -132,3 +135,33 @@ def test_at_most_one_host_read_per_gradient_step_beyond_sacs_own(name, sac_reads
     # per gradient step: at most one (a classifier round's decision); per train() call: the logged figures, once
     assert per_step - sac_step <= 1, (name, per_step, sac_step)
     assert per_call - sac_call <= 1, (name, per_call, sac_call)
+
+
+class Dispatches(TorchDispatchMode):
+    """Counts the operators a piece of code dispatches."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.count = 0
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):  # type: ignore[no-untyped-def]
+        self.count += 1
+        return func(*args, **(kwargs or {}))
+
+
+def dispatches_per_step(model, steps: int = 4) -> float:
+    model.learn(model.learning_starts)
+    model.num_timesteps = 10**6
+    model.train(gradient_steps=2, batch_size=model.batch_size)  # warm-up
+    with Dispatches() as counter:
+        model.train(gradient_steps=steps, batch_size=model.batch_size)
+    return counter.count / steps
+
+
+def test_an_eager_step_skips_the_work_of_the_phases_it_is_not_in():
+    # The host decides: the steady phase (classifier at its threshold) runs no classifier step, the classifier phase
+    # (weights not on) no weight solver; the mixed phase runs both. A mask would run both in every phase.
+    counts = {phase: dispatches_per_step(sgfd(phase=phase)) for phase in ("steady", "classifier", "mixed")}
+    sac = dispatches_per_step(SAC(MlpPolicy, state_env(), replay_buffer_class=DomainReplayBuffer, **COMMON))
+    assert counts["steady"] < counts["mixed"] and counts["classifier"] < counts["mixed"], counts
+    assert sac < counts["classifier"] < counts["steady"], (sac, counts)

@@ -9,6 +9,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from sb3_sgfd.sgfd.classifier import DomainClassifier, accuracy, saliency_probabilities
 from sb3_sgfd.sgfd.functional import (
     classifier_accuracy,
     effective_sample_size,
@@ -17,7 +18,6 @@ from sb3_sgfd.sgfd.functional import (
     saliency_map,
     weighted_pearson,
 )
-from sb3_sgfd.sgfd.weighting import DomainClassifier, accuracy, saliency_probabilities
 from sgfd_analysis.synthetic import DomainBatch, ScaledLogits, make_domain_batch
 
 N_TRAIN = 4096

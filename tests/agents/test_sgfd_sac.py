@@ -12,7 +12,7 @@ import sgfd_envs
 from sb3_sgfd import SGFD_SAC, DomainReplayBuffer, MlpPolicy
 from sb3_sgfd.sgfd.functional import feature_probabilities, learn_sample_weights
 from sb3_sgfd.sgfd.settings import SGFDSettings
-from sb3_sgfd.sgfd.weighting import SampleWeighting, WeightingPlan, Weights
+from sb3_sgfd.sgfd.weighting import SGFDWeighting, WeightingPlan, Weights
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 TINY = dict(
@@ -46,24 +46,24 @@ def test_with_unit_weights_it_is_sb3_sac_exactly():
     assert th.equal(sac.log_ent_coef, sgfd.log_ent_coef)
 
 
-class FixedWeighting(SampleWeighting):
+class FixedWeighting(SGFDWeighting):
     """The same weight for every sample from the first step; counts the batches and records their features."""
 
-    def __init__(self, value: float) -> None:
-        super().__init__(1, 2, SGFDSettings(), seed=0)
+    def __init__(self, value: float, settings: SGFDSettings | None = None) -> None:
+        super().__init__(1, 2, settings or SGFDSettings(), seed=0)
         self.classifier_optimizer = th.optim.Adam(self.classifier.parameters())
         self.value, self.calls, self.features = value, 0, []
 
-    def plan(self, update_index, num_timesteps, weights_wanted):
+    def reading_plan(self, update_index, num_timesteps, weights_wanted):
         return WeightingPlan(classifier_round=False, weights_wanted=weights_wanted)
 
-    def forward(self, z, domains, plan, fresh=()):
+    def forward(self, z, domains, plan, fresh=(), masked=True):
         self.calls += 1
         self.features.append(z)
         return Weights(th.full((len(z),), self.value) if plan.weights_wanted else None, {})
 
 
-def weighted_by(model: SGFD_SAC, weighting: SampleWeighting) -> SGFD_SAC:
+def weighted_by(model: SGFD_SAC, weighting: SGFDWeighting) -> SGFD_SAC:
     model.weighting = weighting
     return model
 
@@ -72,7 +72,7 @@ def weighted_by(model: SGFD_SAC, weighting: SampleWeighting) -> SGFD_SAC:
 def test_weights_multiply_the_critic_and_actor_losses(reweight_critic, reweight_actor):
     # Every sample weighted 0 from the first step: a weighted loss then has zero gradient.
     model = SGFD_SAC("MlpPolicy", state_env(), reweight_critic=reweight_critic, reweight_actor=reweight_actor, **TINY)
-    weighted_by(model, FixedWeighting(0.0))
+    weighted_by(model, FixedWeighting(0.0, model.sgfd))
     critic = [p.clone() for p in model.critic.parameters()]
     actor = [p.clone() for p in model.actor.latent_pi.parameters()]
     ent_coef = model.log_ent_coef.clone()
@@ -89,7 +89,7 @@ def test_weights_multiply_the_critic_and_actor_losses(reweight_critic, reweight_
 @pytest.mark.parametrize(("reweight_critic", "expected"), [(True, 1.0), (False, 0.5)])
 def test_weights_for_the_actor_alone_are_computed_only_on_the_steps_it_learns(reweight_critic, expected):
     model = SGFD_SAC("MlpPolicy", state_env(), reweight_critic=reweight_critic, actor_update_interval=2, **TINY)
-    weighting = weighted_by(model, FixedWeighting(1.0)).weighting
+    weighting = weighted_by(model, FixedWeighting(1.0, model.sgfd)).weighting
     model.learn(400)
     assert model._n_updates >= 50
     wanted = [step for step in range(model._n_updates) if reweight_critic or step % 2 == 0]
@@ -118,12 +118,12 @@ class EncodingChecked(FixedWeighting):
         super().__init__(1.0)
         self.model, self.matches = model, []
 
-    def forward(self, z, domains, plan, fresh=()):
+    def forward(self, z, domains, plan, fresh=(), masked=True):
         critic = self.model.critic
         with th.no_grad():
             expected = critic.extract_features(self.model.batches[-1].observations, critic.features_extractor)
         self.matches.append(th.equal(z, expected) and not z.requires_grad)
-        return super().forward(z, domains, plan, fresh)
+        return super().forward(z, domains, plan, fresh, masked)
 
 
 def test_the_weights_reuse_the_critics_features_of_the_batch():
@@ -232,7 +232,7 @@ def test_a_single_domain_warns_once_and_trains_as_sac():
         model = SGFD_SAC("MlpPolicy", env, classifier_start=150, **TINY)
         model.learn(300)
     assert len([w for w in record if "single domain" in str(w.message)]) == 1
-    assert model.single_domain and not model.weighting.ready
+    assert model.weighting.single_domain and not model.weighting.ready
     assert "sgfd/weight_ess" not in model.logger.name_to_value
 
 

@@ -11,6 +11,7 @@ from torch.nn import functional as F
 
 import sgfd_envs
 from sb3_sgfd import SGFD_SAC
+from sb3_sgfd.sgfd.classifier import DomainClassifier
 from sb3_sgfd.sgfd.decorrelation import (
     WeightMemory,
     official_fourier_features,
@@ -20,7 +21,7 @@ from sb3_sgfd.sgfd.decorrelation import (
 )
 from sb3_sgfd.sgfd.functional import effective_sample_size, learn_sample_weights
 from sb3_sgfd.sgfd.settings import SGFDSettings
-from sb3_sgfd.sgfd.weighting import DomainClassifier, OfficialWeighting, PaperWeighting, WeightingPlan
+from sb3_sgfd.sgfd.weighting import OfficialWeighting, PaperWeighting, WeightingPlan
 from sgfd_analysis.synthetic import make_domain_batch
 from tests.agents.test_reweighting import seeded, tied_correlation, top_probs
 

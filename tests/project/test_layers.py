@@ -14,9 +14,9 @@ PACKAGES = ("sb3_sgfd", "sgfd_envs", "sgfd_zoo", "sgfd_analysis")
 #: drawn from the zoo's runs; the ``sgfd-zoo`` command dispatches to every command, the figures' included.
 FLOORS = (("sgfd_envs",), ("sb3_sgfd",), ("sgfd_zoo",), ("sgfd_analysis",), ("sgfd_zoo.cli", "sgfd_zoo.__main__"))
 #: Modules that import project modules by a name they compute, and the table (a literal dict, its values the
-#: modules) those names come from: the graph takes them from the table. The old paths of 0.1.0 are looked up in
-#: the modules that now hold their names, when an old saved file asks for them.
-COMPUTED_IMPORTS = {"sb3_sgfd._legacy": "MOVED"}
+#: modules) those names come from: the graph takes them from the table. None today: every import is one the graph
+#: sees (the old paths of saved files are plain modules that re-export, e.g. sb3_sgfd.policies).
+COMPUTED_IMPORTS: dict[str, str] = {}
 
 
 def all_imports(node: ast.AST) -> set[str]:
@@ -114,7 +114,15 @@ def test_a_project_module_imported_by_a_string_is_refused():
         if name not in COMPUTED_IMPORTS
     }
     assert not {name: arguments for name, arguments in found.items() if arguments}
-    assert "sb3_sgfd.sgfd.sgfd_sac" in module_imports()["sb3_sgfd._legacy"]  # the old paths' targets, from MOVED
+
+
+def test_importing_the_packages_installs_no_import_hook():
+    # No sys.meta_path finder and no path hook: old module paths are plain modules (sb3_sgfd.policies, ...)
+    code = "import sys; before = (list(sys.meta_path), list(sys.path_hooks)); "
+    code += "import sb3_sgfd, sgfd_envs, sgfd_zoo, sgfd_analysis; "
+    code += "print(len(sys.meta_path) - len(before[0]), len(sys.path_hooks) - len(before[1]))"
+    added = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
+    assert added.stdout.split() == ["0", "0"]
 
 
 def test_each_module_imports_from_its_floor_and_below():

@@ -11,7 +11,7 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import DictReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_sgfd.common.buffers.replay import DomainLabelsMixin, domain_labels
+from sb3_sgfd.common.buffers.replay import distinct_labels, domain_labels
 from sb3_sgfd.common.validation import check_positive_int, check_transitions
 
 
@@ -28,7 +28,7 @@ class DomainDictReplayBufferSamples(NamedTuple):
     same_episode_observations: th.Tensor | None = None
 
 
-class DomainDictReplayBuffer(DomainLabelsMixin, DictReplayBuffer):
+class DomainDictReplayBuffer(DictReplayBuffer):
     """
     :class:`~sb3_sgfd.common.buffers.DomainReplayBuffer` for Dict observation spaces: the label of each transition
     from ``info["domain"]`` (else the sub-env's index), a non-finite value or a label outside [0, n_domains)
@@ -79,6 +79,10 @@ class DomainDictReplayBuffer(DomainLabelsMixin, DictReplayBuffer):
         )
         self.domains = np.zeros((self.buffer_size, self.n_envs), dtype=np.int64)
         self._n_adds = 0
+
+    def stored_domains(self) -> np.ndarray:
+        """The distinct domain labels among the transitions stored so far."""
+        return distinct_labels(self.domains, self.size())
 
     def add(  # type: ignore[override]
         self,

@@ -1,46 +1,30 @@
 """The replay buffer that remembers which environment (domain) each transition came from: its domain labels, the
-buffer (SB3's ``ReplayBuffer`` plus the storage of :mod:`sb3_sgfd.common.buffers.storage`), its batches, and SAC's
-n-step returns computed from its rewards and episode ends (:func:`n_step_targets`, as SB3's
+buffer (SB3's ``ReplayBuffer`` holding a frame store and an episode index, :mod:`sb3_sgfd.common.buffers.storage`), its
+batches, and SAC's n-step returns computed from its rewards and episode ends (:func:`n_step_targets`, as SB3's
 ``NStepReplayBuffer``)."""
 
 from __future__ import annotations
 
+import warnings
 from typing import Any, NamedTuple
 
 import numpy as np
+import psutil
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.preprocessing import get_obs_shape
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_sgfd.common.buffers.storage import (
-    EMPTY_SPACE,
-    EpisodeIndexMixin,
-    FrameStorageMixin,
-    check_frame_stack,
-    stored_pairs,
-)
+from sb3_sgfd.common.buffers.old_layouts import held_layout
+from sb3_sgfd.common.buffers.storage import EMPTY_SPACE, EpisodeIndex, FrameStore, check_frame_stack, stored_pairs
 from sb3_sgfd.common.transfer import BatchTransfer
 from sb3_sgfd.common.validation import check_interval, check_positive_int, check_transitions
 
 
-class DomainLabelsMixin:
-    """
-    The domain labels of the stored transitions, ``domains[slot, env]``, which the host allocates and fills at
-    each add (from :func:`domain_labels`). Needs from the host: SB3's ``buffer_size``, ``pos`` and ``full``.
-    """
-
-    domains: np.ndarray
-    # From the host (SB3's BaseBuffer)
-    buffer_size: int
-    pos: int
-    full: bool
-
-    def stored_domains(self) -> np.ndarray:
-        """The distinct domain labels among the transitions stored so far."""
-        upper = self.buffer_size if self.full else self.pos
-        return np.unique(self.domains[:upper])
+def distinct_labels(domains: np.ndarray, n_stored: int) -> np.ndarray:
+    """The distinct domain labels among the first ``n_stored`` slots of a buffer's labels (slot, env)."""
+    return np.unique(domains[:n_stored])
 
 
 def domain_labels(infos: list[dict[str, Any]]) -> np.ndarray:
@@ -65,7 +49,7 @@ class DomainReplayBufferSamples(NamedTuple):
     same_episode_observations: th.Tensor | None = None
 
 
-class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin, ReplayBuffer):
+class DomainReplayBuffer(ReplayBuffer):
     """
     Replay buffer that stores the domain label of each transition.
 
@@ -162,31 +146,34 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
             handle_timeout_termination=handle_timeout_termination,
         )
         self.domains = np.zeros((self.buffer_size, self.n_envs), dtype=np.int64)
-        # Before the frame storage: its memory check counts these arrays too.
-        self._init_episode_tracking()
-        if self.frame_stack is not None:
-            self.observation_space = observation_space
-            self.obs_shape = get_obs_shape(observation_space)  # type: ignore[assignment]
-            self._init_frame_storage(observation_space)  # type: ignore[arg-type]
         self.same_episode_negatives = bool(same_episode_negatives)
         # Seeded from the global RNG only when used, so that a buffer without it leaves the global stream (and
         # thus every batch) exactly as before; later draws never touch the global RNG.
-        self._negatives_rng = (
-            np.random.default_rng(np.random.randint(2**31 - 1)) if self.same_episode_negatives else None
-        )
+        rng = np.random.default_rng(np.random.randint(2**31 - 1)) if self.same_episode_negatives else None
+        self.episode_index = EpisodeIndex(self.buffer_size, self.n_envs, rng)
+        self.frame_store: FrameStore | None = None
+        if self.frame_stack is not None:
+            self.observation_space = observation_space
+            self.obs_shape = get_obs_shape(observation_space)  # type: ignore[assignment]
+            self._empty_obs = np.zeros((self.n_envs, 0), dtype=observation_space.dtype)
+            self.frame_store = FrameStore(self.buffer_size, self.n_envs, observation_space, self.frame_stack)  # type: ignore[arg-type]
+            warn_if_short_of_memory(self.storage_nbytes())
+
+    def __getstate__(self) -> dict[str, Any]:
+        # The held parts pickled as their attributes: a saved buffer names no class but this one's (and the batch
+        # transfer's), so that the parts can move without old files failing to load.
+        state = dict(self.__dict__)
+        for name in ("episode_index", "frame_store"):
+            if state[name] is not None:
+                state[name] = dict(vars(state[name]))
+        return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        # Buffers pickled before frame_stack existed stored observations as they are.
-        state.setdefault("frame_stack", None)
-        # Buffers pickled before episode tracking existed: no negatives, episodes rebuilt from the done flags.
-        state.setdefault("same_episode_negatives", False)
-        state.setdefault("_negatives_rng", None)
-        state.setdefault("n_domains", None)
-        state.setdefault("n_steps", 1)
-        state.setdefault("gamma", 0.99)
-        self.__dict__.update(state)
-        if "episodes" not in state:
-            self._rebuild_episodes()
+        self.__dict__.update(held_layout(state))  # also a buffer pickled by an earlier version
+
+    def stored_domains(self) -> np.ndarray:
+        """The distinct domain labels among the transitions stored so far."""
+        return distinct_labels(self.domains, self.size())
 
     def add(
         self,
@@ -208,54 +195,29 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
             rewards=reward,
             domains=labels,
             n_domains=self.n_domains,
-            add_index=self._n_adds,
+            add_index=self.episode_index.n_adds,
         )
         ended = ended.reshape(self.n_envs) != 0
-        if self.frame_stack is None:
-            # Read before super().add() because that call advances self.pos.
-            slot = self.pos
-            self.domains[slot] = labels
-            super().add(obs, next_obs, action, reward, done, infos)
-            self._track_episodes(slot, ended)
-            return
-
-        obs, next_obs = self._as_stacks(obs, "obs"), self._as_stacks(next_obs, "next_obs")
-        continuing = self._check_stacks(obs, next_obs)
-
+        # Read before super().add() because that call advances self.pos.
         slot = self.pos
         self.domains[slot] = labels
-        # Actions, rewards, dones, timeouts and the ring position are the parent's business.
-        super().add(self._empty_obs, self._empty_obs, action, reward, done, infos)
-
-        for env_idx in np.flatnonzero(self.has_side_frame[slot]):
-            del self.side_frames[(slot, int(env_idx))]
-        self.has_side_frame[slot] = False
-        last = self._last_slot
-        # With a single slot, the previous transition is the one overwritten now.
-        if last is not None and last != slot:
-            for env_idx in np.flatnonzero(~continuing):
-                self.side_frames[(last, int(env_idx))] = self._last_next_obs[env_idx, -self._channels :].copy()
-                self.has_side_frame[last, env_idx] = True
-
-        history = np.where(continuing, np.minimum(self._last_history.astype(np.intp) + 1, self.frame_stack - 1), 0)
-        self.frames[slot] = obs[:, -self._channels :]
-        self.history[slot] = history
-        self._last_history[:] = history
-        self._last_next_obs[:] = next_obs
-        self._last_done[:] = ended
-        self._last_slot = slot
-        self._track_episodes(slot, ended)
+        store = self.frame_store
+        if store is None:
+            super().add(obs, next_obs, action, reward, done, infos)
+        else:
+            obs, next_obs = store.as_stacks(obs, "obs"), store.as_stacks(next_obs, "next_obs")
+            continuing = store.check_stacks(obs, next_obs)
+            # Actions, rewards, dones, timeouts and the ring position are the parent's business.
+            super().add(self._empty_obs, self._empty_obs, action, reward, done, infos)
+            store.add(slot, obs, next_obs, continuing, ended)
+        self.episode_index.track(slot, ended)
 
     def reset(self) -> None:
         super().reset()
-        # The episode bookkeeping is kept: an episode may go on after a reset. Add indices keep counting, so
-        # that the stored part of every episode stays known.
-        if self.frame_stack is not None:
-            self.side_frames.clear()
-            self.has_side_frame[:] = False
-            # The continuity state is kept: an episode may go on after a reset, its older frames
-            # are just no longer stored (see is_sampleable).
-            self._last_slot = None
+        # The episode index is kept: an episode may go on after a reset. Add indices keep counting, so that the
+        # stored part of every episode stays known.
+        if self.frame_store is not None:
+            self.frame_store.reset()
 
     def is_sampleable(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> np.ndarray:
         """
@@ -272,12 +234,12 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
         batch_inds, env_indices, in_range = stored_pairs(batch_inds, env_indices, n_stored, self.n_envs)
         if self.optimize_memory_usage and self.full:
             in_range &= batch_inds != self.pos
-        if self.frame_stack is None or not in_range.any():
+        if self.frame_store is None or not in_range.any():
             return in_range
         slots, envs = np.where(in_range, batch_inds, 0), np.where(in_range, env_indices, 0)
         # Number of stored transitions older than each slot (0 for the oldest, at self.pos once full)
         older = (slots - self.pos) % self.buffer_size if self.full else slots
-        return in_range & (older >= self.history[slots, envs])
+        return in_range & self.frame_store.whole(slots, envs, older)
 
     def _get_samples(  # type: ignore[override]  # a superset of ReplayBufferSamples (SB3: DictReplayBuffer)
         self,
@@ -323,8 +285,8 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
                 gamma=self.gamma,
             )
         next_inds = batch_inds if targets is None else targets.last_slots
-        if self.frame_stack is not None:
-            obs, next_obs = self._rebuild_stacks(batch_inds, env_indices, next_inds)
+        if self.frame_store is not None:
+            obs, next_obs = self.frame_store.rebuild(batch_inds, env_indices, next_inds)
         else:
             obs = self.observations[batch_inds, env_indices, :]
             if self.optimize_memory_usage:  # one-step only (n_steps > 1 refuses it)
@@ -388,15 +350,76 @@ class DomainReplayBuffer(DomainLabelsMixin, FrameStorageMixin, EpisodeIndexMixin
         return self._observations_at(batch_inds, env_indices)
 
     def storage_nbytes(self) -> int:
-        """Bytes held by the buffer's storage: its arrays, plus, with ``frame_stack``, the side frames."""
+        """Bytes held by the buffer's storage: its arrays, the episode index's, and the frame store's."""
         arrays = [self.actions, self.rewards, self.dones, self.timeouts, self.domains, self.observations]
-        arrays += [self.episodes, self._episode_first, self._episode_last]
+        arrays += self.episode_index.arrays()
         if not self.optimize_memory_usage:
             arrays.append(self.next_observations)
-        if self.frame_stack is not None:
-            arrays += [self.frames, self.history, self.has_side_frame, self._last_next_obs]
-            arrays += list(self.side_frames.values())
+        if self.frame_store is not None:
+            arrays += self.frame_store.arrays()
         return sum(array.nbytes for array in arrays)
+
+    def episode_ids(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> np.ndarray:
+        """
+        Id of the episode of each stored transition; two transitions share an episode iff they share its id.
+
+        :param batch_inds: Slots
+        :param env_indices: Env indices, same shape as ``batch_inds``
+        :return: int64 array of that shape
+        """
+        return self.episode_index.ids(batch_inds, env_indices, self.size())
+
+    def _observations_at(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> np.ndarray:
+        """``observations_at`` without the checks, for pairs known to be sampleable."""
+        if self.frame_store is None:
+            return self.observations[batch_inds, env_indices]
+        return self.frame_store.stacks_at(batch_inds, env_indices)
+
+    def _same_episode_indices(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Slot and env of each sample's same-episode negative (:meth:`EpisodeIndex.negatives`)."""
+        window = (self.frame_stack or 1) + 1  # only the oldest k - 1 may miss frames (one its obs, memory-optimised)
+        first = self.episode_index.first_sampleable(self.pos, self.size(), window, self.is_sampleable)
+        return self.episode_index.negatives(batch_inds, env_indices, self.pos, first)
+
+    def _redraw_unsampleable(self, batch_inds: np.ndarray, env_indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Draw again, uniformly, the pairs whose stacks miss frames (at most ``k - 1`` oldest slots per env).
+
+        :param batch_inds: Drawn slots
+        :param env_indices: Drawn env indices
+        :return: Slots and env indices, all sampleable
+        """
+        bad = ~self.is_sampleable(batch_inds, env_indices)
+        if not bad.any():
+            return batch_inds, env_indices
+        upper = self.size()
+        # Slots with at least k - 1 older stored ones are always sampleable, so only tiny buffers need a look.
+        slots = np.arange(upper)
+        assert self.frame_stack is not None
+        if (
+            upper < self.frame_stack
+            and not self.is_sampleable(np.repeat(slots, self.n_envs), np.tile(np.arange(self.n_envs), upper)).any()
+        ):
+            raise ValueError("No stored transition can be sampled: every stored one misses frames of its stack")
+        batch_inds, env_indices = batch_inds.copy(), env_indices.copy()
+        while bad.any():
+            n_bad = int(bad.sum())
+            batch_inds[bad] = np.random.randint(0, upper, size=n_bad)
+            env_indices[bad] = np.random.randint(0, high=self.n_envs, size=n_bad)
+            bad = ~self.is_sampleable(batch_inds, env_indices)
+        return batch_inds, env_indices
+
+
+def warn_if_short_of_memory(needed: int) -> None:
+    """SB3's warning that the buffer's storage will not fit in the memory available, for the frame store's arrays
+    (SB3 counts only its own)."""
+    available = psutil.virtual_memory().available
+    if needed > available:
+        warnings.warn(
+            "This system does not have apparently enough memory to store the complete "
+            f"replay buffer {needed / 1e9:.2f}GB > {available / 1e9:.2f}GB",
+            stacklevel=3,
+        )
 
 
 class NStepTargets(NamedTuple):
