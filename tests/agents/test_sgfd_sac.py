@@ -6,8 +6,10 @@ import pytest
 import torch as th
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.logger import KVWriter, Logger
 from stable_baselines3.common.vec_env import DummyVecEnv
 
+import sb3_sgfd
 import sgfd_envs
 from sb3_sgfd import SGFD_SAC, DomainReplayBuffer, MlpPolicy
 from sb3_sgfd.sgfd.functional import feature_probabilities, learn_sample_weights
@@ -277,3 +279,53 @@ def test_a_label_beyond_n_domains_is_refused():
     model = reweighting_model(n_domains=2)
     with pytest.raises(ValueError, match="n_domains"):
         model.learn(400)
+
+
+class Recorded(KVWriter):
+    """A logger output that keeps every dump."""
+
+    def __init__(self) -> None:
+        self.dumps: list[tuple[dict, dict]] = []
+
+    def write(self, key_values, key_excluded, step=0) -> None:
+        self.dumps.append((dict(key_values), dict(key_excluded)))
+
+    def close(self) -> None:
+        """Nothing held."""
+
+
+def test_the_sample_weights_reach_the_logger_as_a_histogram_for_tensorboard_only():
+    model = reweighting_model(accuracy_threshold=0.1, classifier_iters=1)
+    recorded = Recorded()
+    model.set_logger(Logger(None, [recorded]))
+    model.learn(400)
+    assert bool(model.weighting.ready)
+    model.dump_logs()  # what SB3 does at an episode's end (the walker's are longer than this run)
+    dumps = [(values, excluded) for values, excluded in recorded.dumps if "sgfd/weights" in values]
+    assert dumps, "no histogram of the weights was logged"
+    values, excluded = dumps[-1]
+    weights = values["sgfd/weights"]
+    assert isinstance(weights, th.Tensor) and weights.shape == (model.batch_size,)
+    assert abs(float(weights.mean()) - 1.0) < 1e-4  # the weights, mean 1
+    assert set(excluded["sgfd/weights"]) == {"stdout", "log", "json", "csv"}
+
+
+def test_a_model_saved_by_a_newer_version_is_refused_in_one_line(tmp_path):
+    import json
+    import zipfile
+
+    model = SGFD_SAC("MlpPolicy", state_env(), **TINY)
+    model.save(tmp_path / "model")
+    with zipfile.ZipFile(tmp_path / "model.zip") as saved:
+        members = {name: saved.read(name) for name in saved.namelist()}
+    data = json.loads(members["data"])
+    assert data["sb3_sgfd_version"] == sb3_sgfd.__version__  # what wrote it
+    data["sb3_sgfd_version"] = "99.0.0"
+    members["data"] = json.dumps(data).encode()
+    with zipfile.ZipFile(tmp_path / "newer.zip", "w") as newer:
+        for name, content in members.items():
+            newer.writestr(name, content)
+    with pytest.raises(ValueError, match=r"written by sb3-sgfd 99\.0\.0, newer than this sb3-sgfd") as error:
+        SGFD_SAC.load(tmp_path / "newer.zip")
+    assert "\n" not in str(error.value)
+    assert SGFD_SAC.load(tmp_path / "model.zip").sb3_sgfd_version == sb3_sgfd.__version__
