@@ -1,6 +1,7 @@
 """
 Cost of one gradient step of SGFD_SAC and the paper's agents next to SB3's SAC, eager and compiled
-(``compile_update=True``: on CUDA one CUDA-graph replay per step plan), with the same policy, batch and replay data.
+(``compile_update=True``: on CUDA one CUDA-graph replay per step plan; on the CPU SGFD's weight solver compiled by
+torch.compile), with the same policy, batch and replay data.
 
 Two policies, and the agents:
 
@@ -11,8 +12,10 @@ Two policies, and the agents:
   its objective and augmentation as in sgfd_zoo/hyperparams.
 
 SGFD is timed in three phases: ``steady`` (weights on, the classifier above its threshold: its round is scored and
-masked off), ``classifier`` (the classifier training at every step, weights not yet on: the start of a run) and
-``mixed`` (weights on and the classifier training). Every model updates its actor at every step, so the ratio to SAC is
+skipped on the host, or masked off in a captured step), ``classifier`` (the classifier training at every step,
+weights not yet on: the start of a run; no solver, where the host decides) and ``mixed`` (weights on and the
+classifier training). A compiled row's one-off cost (compilation, captures) is printed under its ratio, with the
+updates after which it pays back. Every model updates its actor at every step, so the ratio to SAC is
 the additions' own cost. Each timed round is ``--round-steps`` gradient steps of every model in turn, so all see the
 same machine load; the table gives the median over rounds of the time per step and of the ratio within a round.
 
@@ -68,8 +71,8 @@ POLICIES: dict[str, tuple[type, Callable[[], VecEnv], dict]] = {
 }
 
 #: Each phase held through SGFD's own settings (and the weighting's ``ready``: whether the weights have started).
-#: Steady: every accuracy above 0 reaches the least threshold, so a round's step is masked off (its cost is that of a
-#: step: the decision is on the device). Classifier and mixed: a classifier whose learning rate leaves its
+#: Steady: every accuracy above 0 reaches the least threshold, so a round trains nothing (skipped on the host; in a
+#: captured step masked off, at the cost of a step). Classifier and mixed: a classifier whose learning rate leaves its
 #: parameters as they are never reaches an accuracy of 1, so it takes its step on every round.
 PHASE_SETTINGS: dict[str, dict[str, Any]] = {
     "steady": {"accuracy_threshold": 1e-6},
@@ -130,18 +133,18 @@ def models_of(name: str, args: argparse.Namespace, device: th.device) -> dict[st
 
 
 def classifier_steps(model: SGFD_SAC) -> int:
-    """The optimiser steps the paper reading's classifier has taken (Adam counts them; a masked step counts none)."""
+    """The optimiser steps the paper reading's classifier has taken (Adam counts them; a skipped or masked one not)."""
     state = model.weighting.classifier_optimizer.state.get(next(model.classifier.parameters()), {})
     return int(state.get("step", 0))
 
 
 def check_phase(key: str, model: SGFD_SAC, first_update: int, steps_before: int) -> None:
     """That the classifier trained on every update since ``first_update`` (classifier and mixed phases; in the steady
-    one its round is scored and masked off, at the same cost), and the weights were on (classifier phase: off)."""
+    one it trains on none), and the weights were on (classifier phase: off)."""
     phase = next((phase for phase in PHASES if f" {phase} " in f" {key} "), "steady")
     taken, updates = classifier_steps(model) - steps_before, model._n_updates - first_update
-    if phase != "steady":
-        assert taken == updates, f"{key}: the classifier took {taken} steps where the phase holds {updates}"
+    expected = 0 if phase == "steady" else updates
+    assert taken == expected, f"{key}: the classifier took {taken} steps where the phase holds {expected}"
     model._update.log_figures(model.logger)  # what the device still holds, into the logger
     weighted = "sgfd/weight_ess" in model.logger.name_to_value
     assert weighted == (phase != "classifier"), f"{key}: the weights were {'on' if weighted else 'off'}"
@@ -206,11 +209,13 @@ def dispatches_per_update(model: BaseAlgorithm, batch_size: int, steps: int = 4)
 def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> dict[str, float]:
     models = models_of(name, args, device)
     gpu = device.type == "cuda"
-    for model in models.values():
+    warmup_seconds: dict[str, float] = {}
+    for key, model in models.items():
         model._setup_learn(10**6)
         fill(model, args.fill, seed=0)
         # warm-up: the allocator, the first classifier steps, compilation and captures (on a GPU cuDNN's kernels)
-        time_round(model, args.warmup or (20 if gpu else 3), args.batch_size, device)
+        warmup = args.warmup or (20 if gpu else 3)
+        warmup_seconds[key] = warmup * time_round(model, warmup, args.batch_size, device)
     dispatches = {key: dispatches_per_update(model, args.batch_size) for key, model in models.items()}
     steps = args.round_steps or ((200 if gpu else 20) if name == "mlp" else (50 if gpu else 2))
     times: dict[str, list[float]] = {key: [] for key in models}
@@ -235,18 +240,31 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> dict
         print(f"| {key:<{width}} | {medians[key]:>11.2f} | {ratio:>5.2f}x | {host:>10.0f} | {inside:>9.0f} |")
     sac_dispatches = dispatches["SAC"][0]
     compiled = [key for key in times if key.endswith("compiled")]
-    worst = max(dispatches[key][0] for key in compiled) if compiled else float("nan")
-    print(f"compiled host dispatches / SB3 SAC's: at most {worst / sac_dispatches:.3f} (goal <= 0.1)")
+    if gpu and compiled:  # what a captured update saves: the host's dispatches (on the CPU nothing is captured)
+        worst = max(dispatches[key][0] for key in compiled)
+        print(f"compiled host dispatches / SB3 SAC's: at most {worst / sac_dispatches:.3f} (goal <= 0.1)")
     for key in compiled:
         eager = key.removesuffix("compiled") + "eager"
         if eager in times:
             print(f"{key.removesuffix(' compiled')}: compiled / eager {round_ratio(times, key, eager):.2f}x")
+            print_compile_time(key, eager, warmup_seconds, medians, args.warmup or (20 if gpu else 3))
     if name == "agents":
         for way in ("eager", "compiled"):
             if f"AMBS {way}" in times:
                 ratio = round_ratio(times, f"SGFD on AMBS {way}", f"AMBS {way}")
                 print(f"SGFD on AMBS / AMBS, {way}: {ratio:.2f}x (what the reweighting adds to the paper's agent)")
     return medians
+
+
+def print_compile_time(
+    compiled: str, eager: str, warmup_seconds: dict[str, float], medians: dict[str, float], steps: int
+) -> None:
+    """The compiled update's one-off cost (its warm-up over the eager one's: compilation, captures) and the updates
+    after which its saving per update pays it back (none: it does not save)."""
+    cost = warmup_seconds[compiled] - warmup_seconds[eager]
+    saving_ms = medians[eager] - medians[compiled]
+    payback = f"paid back after {1e3 * cost / saving_ms:,.0f} updates" if saving_ms > 0 else "never paid back"
+    print(f"  compile and capture {cost:.1f} s over {steps} warm-up steps; {payback}")
 
 
 def round_ratio(times: dict[str, list[float]], key: str, base: str) -> float:

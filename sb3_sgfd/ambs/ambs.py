@@ -180,23 +180,13 @@ class AMBS(EncoderSAC):
 
     fixed_representation: ClassVar[str | None] = "ambs"
 
-    def __init__(
-        self,
-        policy: Any,
-        env: Any,
-        *,
-        encoder_tau: float | None = 0.05,
-        actor_update_interval: int = 2,
-        augmentation_views: int = 2,
-        max_grad_norm: float | None = 40.0,
-        **kwargs: Any,
-    ) -> None:
-        super().__init__(
-            policy,
-            env,
-            encoder_tau=encoder_tau,
-            actor_update_interval=actor_update_interval,
-            augmentation_views=augmentation_views,
-            max_grad_norm=max_grad_norm,
-            **kwargs,
-        )
+    #: AMBS's values of EncoderSAC's arguments, where the caller gives none
+    defaults: ClassVar[dict[str, Any]] = {
+        "encoder_tau": 0.05,
+        "actor_update_interval": 2,
+        "augmentation_views": 2,
+        "max_grad_norm": 40.0,
+    }
+
+    def __init__(self, policy: Any, env: Any, **kwargs: Any) -> None:
+        super().__init__(policy, env, **{**self.defaults, **kwargs})

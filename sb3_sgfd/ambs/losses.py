@@ -107,6 +107,32 @@ def ambs_distance(
     return c * reward_learner(a_rew, b_rew) + (1 - c) * dynamics_learner(a_dyn, b_dyn)
 
 
+def checked_metric_inputs(
+    h: Tensor,
+    aug_h: Tensor,
+    rewards: Tensor,
+    mu: Tensor,
+    sigma: Tensor | None,
+    perm: Tensor,
+    reward_weight: float | Tensor,
+    gamma: float,
+    reward_dim: int,
+) -> tuple[Tensor, float | Tensor]:
+    """The metric losses' inputs checked, each refused in one line naming it (their parameters are theirs); returns
+    the rewards as an (n,) tensor like ``h`` and the balance c."""
+    check_matrix(h, "h")
+    check_same_shape(aug_h, "aug_h", h, "h")
+    n, d = h.shape
+    r = check_rewards(rewards, n).to(h)
+    check_reward_dim(reward_dim, d)
+    check_matrix(mu, "mu", rows=n, cols=d - reward_dim)
+    if sigma is not None:
+        check_same_shape(sigma, "sigma", mu, "mu")
+    check_perm(perm, n)
+    check_gamma(gamma)
+    return r, check_reward_weight(reward_weight)
+
+
 def ambs_metric_loss(
     h: Tensor,
     aug_h: Tensor,
@@ -147,17 +173,9 @@ def ambs_metric_loss(
     :param reward_dim: size of the reward half, in [1, d - 1]
     :return: scalar loss
     """
-    check_matrix(h, "h")
-    check_same_shape(aug_h, "aug_h", h, "h")
-    n, d = h.shape
-    r = check_rewards(rewards, n).to(h)
-    check_reward_dim(reward_dim, d)
-    check_matrix(mu, "mu", rows=n, cols=d - reward_dim)
+    r, c = checked_metric_inputs(h, aug_h, rewards, mu, sigma, perm, reward_weight, gamma, reward_dim)
+    d = h.shape[1]
     sigma = torch.zeros_like(mu) if sigma is None else sigma
-    check_same_shape(sigma, "sigma", mu, "mu")
-    check_perm(perm, n)
-    check_gamma(gamma)
-    c = check_reward_weight(reward_weight)
     check_metric_learner(reward_learner, "reward_learner", reward_dim)
     check_metric_learner(dynamics_learner, "dynamics_learner", d - reward_dim)
     perm = perm.to(h.device)
@@ -213,17 +231,8 @@ def ambs_metric_loss_code(
     :param reward_dim: size of the reward half, in [1, d - 1]
     :return: scalar loss
     """
-    check_matrix(h, "h")
-    check_same_shape(aug_h, "aug_h", h, "h")
-    n, d = h.shape
-    r = check_rewards(rewards, n).to(h)
-    check_reward_dim(reward_dim, d)
-    check_matrix(mu, "mu", rows=n, cols=d - reward_dim)
-    if sigma is not None:
-        check_same_shape(sigma, "sigma", mu, "mu")
-    check_perm(perm, n)
-    check_gamma(gamma)
-    c = check_reward_weight(reward_weight)
+    r, c = checked_metric_inputs(h, aug_h, rewards, mu, sigma, perm, reward_weight, gamma, reward_dim)
+    d = h.shape[1]
     if (reward_learner is None) != (dynamics_learner is None):
         raise ValueError("reward_learner and dynamics_learner must both be MetricLearners or both be None")
     if reward_learner is not None:

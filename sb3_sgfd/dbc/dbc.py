@@ -106,19 +106,8 @@ class DBC(EncoderSAC):
 
     fixed_representation: ClassVar[str | None] = "dbc"
 
-    def __init__(
-        self,
-        policy: Any,
-        env: Any,
-        *,
-        encoder_tau: float | None = 0.05,
-        actor_update_interval: int = 2,
-        **kwargs: Any,
-    ) -> None:
-        super().__init__(
-            policy,
-            env,
-            encoder_tau=encoder_tau,
-            actor_update_interval=actor_update_interval,
-            **kwargs,
-        )
+    #: DBC's values of EncoderSAC's arguments, where the caller gives none
+    defaults: ClassVar[dict[str, Any]] = {"encoder_tau": 0.05, "actor_update_interval": 2}
+
+    def __init__(self, policy: Any, env: Any, **kwargs: Any) -> None:
+        super().__init__(policy, env, **{**self.defaults, **kwargs})

@@ -62,6 +62,10 @@ SINGLE_DOMAIN_WARNING = (
 )
 
 
+#: A classifier round's further batches: (features (n, d), domain labels (n,)) pairs
+Fresh = Sequence[tuple[Tensor, Tensor]]
+
+
 class WeightingPlan(NamedTuple):
     """SGFD's decisions for one gradient step (its share of the step's plan).
 
@@ -190,12 +194,7 @@ class SGFDWeighting(SampleWeighting):
         return LossWeights(weights if settings.reweight_critic else None, weights if settings.reweight_actor else None)
 
     def forward(
-        self,
-        z: Tensor,
-        domains: Tensor,
-        plan: WeightingPlan,
-        fresh: Sequence[tuple[Tensor, Tensor]] = (),
-        masked: bool = True,
+        self, z: Tensor, domains: Tensor, plan: WeightingPlan, fresh: Fresh = (), masked: bool = True
     ) -> Weights:
         """The weights of one batch, and the classifier's work of this step.
 
@@ -264,12 +263,7 @@ class PaperWeighting(SGFDWeighting):
         )
 
     def forward(
-        self,
-        z: Tensor,
-        domains: Tensor,
-        plan: WeightingPlan,
-        fresh: Sequence[tuple[Tensor, Tensor]] = (),
-        masked: bool = True,
+        self, z: Tensor, domains: Tensor, plan: WeightingPlan, fresh: Fresh = (), masked: bool = True
     ) -> Weights:
         # Line 12's p(Z_i) and the batch's accuracy from one pass of the classifier as it was before this step
         predicted, gradient = self.classifier.predictions_and_input_gradient(z)
@@ -305,7 +299,7 @@ class PaperWeighting(SGFDWeighting):
         z: Tensor,
         domains: Tensor,
         plan: WeightingPlan,
-        fresh: Sequence[tuple[Tensor, Tensor]],
+        fresh: Fresh,
         gradient: Tensor,
         figures: dict[str, Tensor],
     ) -> Weights:
@@ -419,12 +413,7 @@ class OfficialWeighting(SGFDWeighting):
             self.classifier_optimizer.step()
 
     def forward(
-        self,
-        z: Tensor,
-        domains: Tensor,
-        plan: WeightingPlan,
-        fresh: Sequence[tuple[Tensor, Tensor]] = (),
-        masked: bool = True,
+        self, z: Tensor, domains: Tensor, plan: WeightingPlan, fresh: Fresh = (), masked: bool = True
     ) -> Weights:
         accuracy_now = self.score(z, domains)  # after this step's round, if one trained
         figures = {"classifier_accuracy": accuracy_now}

@@ -67,19 +67,8 @@ class TED(EncoderSAC):
 
     fixed_representation: ClassVar[str | None] = "ted"
 
-    def __init__(
-        self,
-        policy: Any,
-        env: Any,
-        *,
-        actor_update_interval: int = 2,
-        augmentation_views: int = 1,
-        **kwargs: Any,
-    ) -> None:
-        super().__init__(
-            policy,
-            env,
-            actor_update_interval=actor_update_interval,
-            augmentation_views=augmentation_views,
-            **kwargs,
-        )
+    #: TED's values of EncoderSAC's arguments, where the caller gives none
+    defaults: ClassVar[dict[str, Any]] = {"actor_update_interval": 2, "augmentation_views": 1}
+
+    def __init__(self, policy: Any, env: Any, **kwargs: Any) -> None:
+        super().__init__(policy, env, **{**self.defaults, **kwargs})
