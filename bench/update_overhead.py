@@ -140,11 +140,11 @@ def classifier_steps(model: SGFD_SAC) -> int:
 
 def check_phase(key: str, model: SGFD_SAC, first_update: int, steps_before: int) -> None:
     """That the classifier trained on every update since ``first_update`` (classifier and mixed phases; in the steady
-    one it trains on none), and the weights were on (classifier phase: off)."""
+    one it trains only on a batch it gets wholly wrong), and the weights were on (classifier phase: off)."""
     phase = next((phase for phase in PHASES if f" {phase} " in f" {key} "), "steady")
     taken, updates = classifier_steps(model) - steps_before, model._n_updates - first_update
-    expected = 0 if phase == "steady" else updates
-    assert taken == expected, f"{key}: the classifier took {taken} steps where the phase holds {expected}"
+    if phase != "steady":  # steady: a batch no domain of which the classifier gets right (accuracy 0) still trains it
+        assert taken == updates, f"{key}: the classifier took {taken} steps where the phase holds {updates}"
     model._update.log_figures(model.logger)  # what the device still holds, into the logger
     weighted = "sgfd/weight_ess" in model.logger.name_to_value
     assert weighted == (phase != "classifier"), f"{key}: the weights were {'on' if weighted else 'off'}"
