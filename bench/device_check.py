@@ -12,8 +12,10 @@ check twice):
 3. ``bench/env_throughput.py`` (rendering with MUJOCO_GL=egl): each split's cost over the undistracted render;
 4. a learning run of the paper's agent (``sgfd_sac``: SGFD on AMBS) with the zoo's paper-scale settings, the 4
    training domains rendered in subprocesses, its update captured, measured in SGFD's phase (the classifier from
-   ``CLASSIFIER_START`` on): updates per second, the hours of a paper-scale run (500k updates), and where an
-   update's wall time goes (the env step, the replay sample and its transfer, the update itself);
+   ``CLASSIFIER_START`` on, the burst of updates left out): updates per second, the env steps (transitions)
+   collected per update and per second of collecting (the env step in the subprocesses with the policy's action and
+   the buffer's add), the hours of a paper-scale run (200,800 updates and 1e6 env steps), and where an update's wall
+   time goes (the env step, the replay sample and its transfer, the update itself);
 5. 4 and 8 such runs at once on the one GPU (each with 4 env processes): their updates per second in all, over a
    window they share.
 
@@ -40,7 +42,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-PAPER_UPDATES = 500_000
+#: A paper-scale run (the authors' protocol, sgfd_zoo/hyperparams): its updates and its env steps.
+PAPER_UPDATES, PAPER_ENV_STEPS = 200_800, 1_000_000
 #: The whole check's worst case, seconds: every part stopped at its limit, plus this script's own start.
 TOTAL_SECONDS = 6 * 60
 #: Each part's time limit on the GPU host, seconds.
@@ -189,8 +192,9 @@ def concurrent(budgets: dict[str, float], smoke: bool) -> Iterator[str]:
         command = [sys.executable, __file__, "--learning-run", "sgfd_sac", "--window", f"{start}:{window}"]
         command += ["--threads", "1", *(["--smoke"] if smoke else [])]
         outputs, seconds = run_together([command] * n_runs, budget)
-        found = [re.search(r"WINDOW ([0-9.]+) updates/s", out) for out in outputs]
+        found = [re.search(r"WINDOW ([0-9.]+) updates/s, ([0-9.]+) env steps per update", out) for out in outputs]
         rates = [float(match[1]) for match in found if match]
+        inside = [float(match[2]) for match in found if match]
         late = sum("late" in out for out in outputs)
         if len(rates) < n_runs:
             yield f"| {n_runs} concurrent runs | exit | {len(rates)} of {n_runs} measured: {_last_line(outputs[-1])} |"
@@ -198,8 +202,9 @@ def concurrent(budgets: dict[str, float], smoke: bool) -> Iterator[str]:
         lateness = f", {late} started measuring late" if late else ""
         yield (
             f"| {n_runs} concurrent sgfd_sac runs, 4 env processes and 1 torch thread each | ok | "
-            f"{sum(rates):.1f} updates/s in all (each {min(rates):.1f}-{max(rates):.1f}) over a shared "
-            f"{window:.0f} s window{lateness} ({seconds:.0f} s) |"
+            f"{sum(rates):.1f} updates/s in all, {sum(inside) / len(inside):.2f} env steps per update (each "
+            f"{min(rates):.1f}-{max(rates):.1f} updates/s) over a shared {window:.0f} s window{lateness} "
+            f"({seconds:.0f} s) |"
         )
 
 
@@ -264,23 +269,25 @@ def learning_run(algo: str, env_id: str, smoke: bool, window: tuple[float, float
             self.clock_of, self.marks, self.stage = clock_of, [], "wait"
 
         def _on_step(self) -> bool:
-            model, now = self.model, time.perf_counter()
+            model, now = self.model, (time.perf_counter(), self.model._n_updates, self.model.num_timesteps)
             ready = model.num_timesteps >= CLASSIFIER_START[smoke] and model._n_updates > 0
             if self.stage == "wait" and ready and window is None:
                 self.stage, self.warm_until = "warm", model._n_updates + 40
             elif self.stage == "wait" and ready and window is not None and time.time() >= window[0]:
                 self.stage, self.late = "rate", time.time() - window[0] > 1.0
-                self.marks = [(now, model._n_updates)]
+                self.marks = [now]
             elif self.stage == "warm" and model._n_updates >= self.warm_until:
-                self.stage, self.marks = "rate", [(now, model._n_updates)]
-            elif self.stage == "rate" and now - self.marks[0][0] >= (window[1] if window else LEARNING_SECONDS[smoke]):
-                self.marks.append((now, model._n_updates))
+                self.stage, self.marks = "rate", [now]
+            elif self.stage == "rate" and now[0] - self.marks[0][0] >= (
+                window[1] if window else LEARNING_SECONDS[smoke]
+            ):
+                self.marks.append(now)
                 if window is not None:
                     return False
                 self.stage, self.clock_of().on = "split", True
-                self.marks.append((now, model._n_updates))
-            elif self.stage == "split" and now - self.marks[2][0] >= LEARNING_SECONDS[smoke] / 2:
-                self.marks.append((now, model._n_updates))
+                self.marks.append(now)
+            elif self.stage == "split" and now[0] - self.marks[2][0] >= LEARNING_SECONDS[smoke] / 2:
+                self.marks.append(now)
                 return False
             return True
 
@@ -289,7 +296,7 @@ def learning_run(algo: str, env_id: str, smoke: bool, window: tuple[float, float
         manager = SGFDExperimentManager(
             Namespace(), algo, env_id, folder, eval_freq=-1, quick=smoke, seed=0, verbose=0, device=device,
             vec_env_type="dummy" if smoke else "subproc", classifier_start=CLASSIFIER_START[smoke],
-            hyperparams={"compile_update": True},
+            hyperparams={"compile_update": True, "callback": []},  # the burst would take the part's minute
         )  # fmt: skip
         try:
             model, _ = manager.setup_experiment()
@@ -300,8 +307,8 @@ def learning_run(algo: str, env_id: str, smoke: bool, window: tuple[float, float
             model.learn(10**9, callback=measure)
             if len(measure.marks) < 2:
                 raise RuntimeError(f"nothing measured (learning_starts {model.learning_starts})")
-            (t0, u0), (t1, u1) = measure.marks[:2]
-            rate = (u1 - u0) / (t1 - t0)
+            (t0, u0, n0), (t1, u1, n1) = measure.marks[:2]
+            rate, inside = (u1 - u0) / (t1 - t0), (n1 - n0) / max(u1 - u0, 1)
             captured = bool(model._update.pieces.graphs)
             weighted = model.weighting is not None and bool(model.weighting.ready)
             shape = "x".join(str(size) for size in model.observation_space.shape)
@@ -309,50 +316,69 @@ def learning_run(algo: str, env_id: str, smoke: bool, window: tuple[float, float
         finally:
             manager.release_run_folder()
     if window is not None:
-        return f"WINDOW {rate:.2f} updates/s{' (late)' if measure.late else ''}"
-    split = clock[0].per_update(max(1, measure.marks[3][1] - measure.marks[2][1]))
+        return f"WINDOW {rate:.2f} updates/s, {inside:.2f} env steps per update{' (late)' if measure.late else ''}"
+    (_, u2, n2), (_, u3, n3) = measure.marks[2:4]
+    split = clock[0].per_update(max(1, u3 - u2))
+    collecting = (n3 - n2) / max(clock[0].totals["env step"], 1e-9)
     kind = (
         f"{'quick' if smoke else 'paper scale'}, observations {shape}, batch {model.batch_size}, {device}, update "
         f"{'captured' if captured else 'eager'}, SGFD's phase (classifier from step {CLASSIFIER_START[smoke]}, "
         f"weights {'on' if weighted else 'not yet on'})"
     )
-    hours = PAPER_UPDATES / rate / 3600
+    hours = (PAPER_UPDATES * max(1 / rate - inside / collecting, 0.0) + PAPER_ENV_STEPS / collecting) / 3600
     return (
-        f"| {algo} on {env_id}, {kind} | ok | {rate:.1f} updates/s: a 500k-update run in {hours:.2f} h; per update "
-        f"(device waited for): {split} |"
+        f"| {algo} on {env_id}, {kind} | ok | {rate:.1f} updates/s, {inside:.2f} env steps per update; collecting "
+        f"{collecting:.0f} env steps/s: a paper-scale run ({PAPER_UPDATES:,} updates, {PAPER_ENV_STEPS:,} env steps) "
+        f"in {hours:.2f} h; per update (device waited for): {split} |"
     )
 
 
 def append_rates(path: Path, rows: list[str], machine: str) -> None:
-    """The learning runs' updates/s (one run, and several at once) as rows of the zoo's rate table, which
-    ``sgfd-zoo study --plan`` reads (its newest date's rows)."""
+    """The learning runs' updates/s with the env steps inside each (one run, and several at once), and the one run's
+    collecting rate (an ``envs`` row), as rows of the zoo's rate table, which ``sgfd-zoo study --plan`` reads (its
+    newest date's rows)."""
     import csv
 
+    single = r"\| sgfd_sac on (\S+),.* update (captured|eager).*\| ok \| ([0-9.]+) updates/s, ([0-9.]+) env steps per "
+    single += r"update; collecting ([0-9.]+) env steps/s"
+    several = (
+        r"\| ([0-9]+) concurrent sgfd_sac runs.*\| ok \| ([0-9.]+) updates/s in all, ([0-9.]+) env steps per update"
+    )
+    date, note = (
+        time.strftime("%Y-%m-%d"),
+        "bench/device_check.py: zoo paper settings, 4 subprocess envs each, SGFD's phase",
+    )
     found = []
     for row in rows:
-        single = re.search(r"\| sgfd_sac on (\S+),.* update (captured|eager).*\| ok \| ([0-9.]+) updates/s", row)
-        if single:
-            found.append((1, float(single[3]), single[2], single[1]))
-        several = re.search(r"\| ([0-9]+) concurrent sgfd_sac runs.*\| ok \| ([0-9.]+) updates/s in all", row)
-        if several:
-            found.append((int(several[1]), float(several[2]), "captured", LEARNING_ENV))
+        if match := re.search(single, row):
+            env_id, update = match[1], match[2]
+            found.append(["sgfd_sac", env_id, 1, match[3], match[4], "", update, f"{note}, 1 at once"])
+            found.append(
+                ["envs", env_id, 1, "", "", match[5], "", f"{note}: collecting (env step, action, buffer add)"]
+            )
+        if match := re.search(several, row):
+            runs = int(match[1])
+            found.append(
+                ["sgfd_sac", LEARNING_ENV, runs, match[2], match[3], "", "captured", f"{note}, {runs} at once"]
+            )
     with path.open("a", newline="") as handle:
-        writer = csv.writer(handle)
-        for runs, rate, update, env_id in found:
-            note = f"bench/device_check.py: zoo paper settings, 4 subprocess envs each, SGFD's phase, {runs} at once"
+        writer = csv.writer(handle, lineterminator="\n")
+        for algo, env_id, runs, updates, inside, env_steps, update, text in found:
             writer.writerow(
                 [
-                    time.strftime("%Y-%m-%d"),
+                    date,
                     machine,
                     os.cpu_count(),
                     1,
-                    "sgfd_sac",
+                    algo,
                     "pixels",
                     env_id,
                     runs,
-                    rate,
+                    updates,
+                    inside,
+                    env_steps,
                     update,
-                    note,
+                    text,
                 ]
             )
 

@@ -17,8 +17,9 @@ re-implemented from their code's description, on procedural frames of their data
 - undistracted: a loop of ``dm_env.step`` and ``physics.render(84, 84, camera_id=0)`` (DMC-GB, DMC-GB2, DCS and
   dmc2gym all render so); ours is ``gym.make(id)``.
 - SGFD background ids, DBC's and AMBS's dmc2gym: ``physics.render``, then the colour rule (blue > green and
-  blue > red) pastes the background frame. Not the same pixels as ours (the rule keeps the skybox's stars and
-  replaces bluish robot parts; ours puts the frame behind by coverage): the row compares the cost.
+  blue > red) pastes the background frame (a moving texture, on dm_control's robot). Ours is the id's default since
+  version 0.3.0, the SGFD authors' setup: the same rule pasting a still image into the render of their local robot
+  files (before: the frame behind the robot by coverage). Not the same pixels: the row compares the cost.
 - DMC-GB ``video_hard``: the sky and floor textures green, ``physics.render``, the whole clip frame (video_hard's
   are 352 x 352, 500 frames) scaled to 84x84 by torch's bilinear interpolate, and the per-pixel HSV loop in Python
   (DMC-GB's ``do_green_screen``, "not optimized for speed").

@@ -63,34 +63,49 @@ def grid(rows: list[list[np.ndarray]]) -> np.ndarray:
     return np.vstack(lines)
 
 
+# The background ids' families drawn: the paper's (the defaults) and the one before version 0.3.0.
+BACKGROUND_FAMILIES: dict[str, dict[str, Any]] = {
+    "paper": {},
+    "earlier": dict(backgrounds="moving", compositing="matte", robots="dm_control", test_domains=4),
+}
+# The MT ids' families drawn: HiP-BMDP's robot files (the default) and this package's scaled robots.
+ROBOT_FAMILIES = ("hipbmdp", "scaled")
+
+
 def backgrounds() -> np.ndarray:
-    """SGFD background ids: the 4 training domains and the 4 unseen test domains of two tasks.
+    """SGFD background ids: the training domains and the unseen test domains of two tasks, in the paper's setup
+    (one still image per domain under the authors' colour key, one test domain) and in the earlier family (moving
+    textures behind dm_control's robots by coverage, four test domains).
 
     At the observations' own size: the moving textures do not compress, and this keeps the file small.
     """
     rows = []
     for task in ("walker-walk", "finger-spin"):
         env_id = f"SGFD/{task}-v0"
-        row = []
-        for split in ("train", "test"):
-            for domain in range(sgfd_envs.n_domains(env_id, split)):
-                pixels = observation(env_id, split=split, domain=domain)
-                row.append(tile(pixels, task, f"{split} {domain}", size=84))
-        rows.append(row)
+        for family, kwargs in BACKGROUND_FAMILIES.items():
+            row = []
+            for split in ("train", "test"):
+                for domain in range(sgfd_envs.n_domains(env_id, split, **kwargs)):
+                    pixels = observation(env_id, split=split, domain=domain, **kwargs)
+                    row.append(tile(pixels, f"{task.split('-')[0]} {family}", f"{split} {domain}", size=84))
+            rows.append(row)
     return grid(rows)
 
 
 def morphology() -> np.ndarray:
-    """SGFD/MT ids: every domain of every split (train, interpolation, extrapolation), with its setting."""
+    """SGFD/MT ids: every domain of every split (train, interpolation, extrapolation), with its setting, for
+    HiP-BMDP's robot files (the default) and this package's scaled robots."""
     rows = []
     for task in ("walker-walk", "cheetah-run", "finger-spin"):
         env_id = f"SGFD/MT-{task}-v0"
-        row = []
-        for split in sgfd_envs.splits(env_id):
-            for domain in range(sgfd_envs.n_domains(env_id, split)):
-                pixels, label = rollout(env_id, STEPS, SEED, split=split, domain=domain)
-                row.append(tile(pixels, f"MT-{task}", f"{split[:6]} s{label.setting} {label.morphology_value:.3g} m"))
-        rows.append(row)
+        for robots in ROBOT_FAMILIES:
+            row = []
+            for split in sgfd_envs.splits(env_id):
+                for domain in range(sgfd_envs.n_domains(env_id, split, robots=robots)):
+                    pixels, label = rollout(env_id, STEPS, SEED, split=split, domain=domain, robots=robots)
+                    caption = f"{split[:6]} s{label.setting} {label.morphology_value:.3g} m"
+                    row.append(tile(pixels, f"{task} {robots}", caption))
+            rows.append(row)
     return grid(rows)
 
 
@@ -113,7 +128,7 @@ def overview() -> np.ndarray:
     shown: list[tuple[str, dict[str, Any], str, str]] = [
         ("SGFD/walker-walk-v0", dict(split="train", domain=0), "backgrounds", "train 0"),
         ("SGFD/walker-walk-v0", dict(split="test", domain=0), "backgrounds", "test 0 (unseen)"),
-        ("SGFD/MT-walker-walk-v0", dict(split="train", domain=0), "morphology", "train s1"),
+        ("SGFD/MT-walker-walk-v0", dict(split="train", domain=0), "morphology", "train s2"),
         ("SGFD/MT-walker-walk-v0", dict(split="extrapolation"), "morphology", "extrap. s10 (unseen)"),
         ("DMCGB/walker-walk-v0", dict(split="video_hard"), "DMC-GB", "video_hard"),
         ("DMCGB2/walker-walk-v0", dict(split="rotate_shift_hard"), "DMC-GB2", "rotate_shift_hard"),

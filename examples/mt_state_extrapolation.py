@@ -1,6 +1,6 @@
 """Train SGFD on four robot morphologies and evaluate it on morphologies it never saw.
 
-The agent trains on the ``train`` split of an MT id (4 torso lengths, one sub-env each) and is evaluated on the
+The agent trains on the ``train`` split of an MT id (4 robots, one sub-env each) and is evaluated on the
 ``interpolation`` and ``extrapolation`` splits. Both sides observe the same thing: the robot's state with the
 varied length appended (``obs_type="state"``, ``observe_parameter=True``), so a policy trained on one can be
 evaluated on the other. The example's own settings, small enough for a laptop: 256-wide networks, one update per

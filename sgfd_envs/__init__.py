@@ -4,7 +4,9 @@
 
 - :data:`SGFD_IDS`, the paper's ten: ``SGFD/{walker-walk,cheetah-run,finger-spin,walker-run,finger-turn}-v0``,
   distracting backgrounds (splits ``train``, ``test``), and ``SGFD/MT-...-v0``, modified morphology (splits
-  ``train``, ``interpolation``, ``extrapolation``);
+  ``train``, ``interpolation``, ``extrapolation``); by default the paper's tasks as its authors' code built them
+  (one still image per domain under their colour key; HiP-BMDP's robot files), the earlier envs a keyword away
+  (:mod:`sgfd_envs.families`);
 - ``SGFD/CW-{picking,pushing}-v0`` (:data:`CAUSAL_WORLD_IDS`): Causal World with the block's mass or size
   per domain, the MT splits; making them needs ``pip install -e ".[causalworld]"``;
 - :data:`BENCHMARK_IDS`: the benchmarks of the field on dm_control's own tasks, ``DMCGB/<task>-v0``,

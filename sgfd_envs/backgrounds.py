@@ -1,13 +1,18 @@
 """Background sources (task-irrelevant variation) and compositing.
 
 A source is a sequence of ``n_frames`` RGB frames (uint8, height x width x 3) read by index; the env
-starts at a random index on reset and advances one frame per step, wrapping around.
+starts at a random index on reset and advances one frame per step, wrapping around. A still source has one frame.
 
-- :class:`ProceduralBackground`, the default: moving natural-looking (1/f noise) colour textures,
-  deterministic per seed, from disjoint train and test seed banks. Needs no download.
+- :class:`ProceduralBackground`: natural-looking (1/f noise) colour textures, deterministic per seed, from
+  disjoint train and test seed banks, moving or (one frame) still. Needs no download.
 - :class:`VideoBackground`: the first ``frame_budget`` frames of a video file, read with OpenCV
   (e.g. the Kinetics clips of DBC and AMBS).
 - :class:`ImageBackground`: one still image (or a video stored as one image per frame).
+
+Two ways to put a frame into the render: :func:`colour_key` (the SGFD authors' code, after DBC's: every pixel of the
+whole render whose blue exceeds its red and its green takes the background's, which replaces the sky and a bluish
+floor) and :func:`composite` (behind the robot by the render's coverage, floor and sky hidden). The authors' code
+pastes the image as OpenCV reads it, in BGR order, into an RGB frame: :class:`ChannelsReversed`.
 
 Which source is which domain of a split (the seed banks, a user's folder) is :mod:`sgfd_envs.background_splits`.
 """
@@ -28,6 +33,7 @@ from sgfd_envs.background_splits import (
     VIDEO_SUFFIXES,
     background_files,
     check_background_split,
+    check_test_domains,
 )
 
 # Their home before they moved to the import-light module, kept.
@@ -64,6 +70,40 @@ def composite(rendered: np.ndarray, coverage: np.ndarray, background: np.ndarray
     uncovered = (255 - coverage.astype(np.uint16))[..., np.newaxis]
     blended = rendered + (uncovered * background + 127) // 255
     return np.minimum(blended, 255).astype(np.uint8)
+
+
+def colour_key(rendered: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """The SGFD authors' background (``dmc2gym/wrappers.py``, ``_get_obs``, after DBC's): every pixel of the render
+    whose blue channel exceeds its red and its green takes the background's pixel. On dm_control's scenes that is
+    the sky and a bluish floor (the finger's), and any bluish part of a robot; the grey floors of the authors'
+    walker and cheetah stay.
+
+    :param rendered: uint8 (H, W, 3) RGB render of the whole scene (floor and skybox drawn)
+    :param background: uint8 (H, W, 3) frame pasted under the mask, in the order given (the authors': BGR)
+    """
+    red, green, blue = rendered[..., 0], rendered[..., 1], rendered[..., 2]
+    keyed = (blue > red) & (blue > green)
+    frame = rendered.copy()
+    frame[keyed] = background[keyed]
+    return frame
+
+
+class ChannelsReversed:
+    """A source's frames with their channels reversed: an RGB frame as OpenCV's ``imread`` of its image gives it
+    (BGR), which is what the SGFD authors' code pastes into the RGB render.
+
+    :param source: the source of RGB frames
+    """
+
+    def __init__(self, source: BackgroundSource) -> None:
+        self.source = source
+
+    @property
+    def n_frames(self) -> int:
+        return self.source.n_frames
+
+    def frame(self, index: int) -> np.ndarray:
+        return self.source.frame(index)[..., ::-1]
 
 
 def fit_frame(
@@ -361,6 +401,8 @@ def make_background(
     background_dir: str | Path | None = None,
     frame_budget: int = DEFAULT_FRAME_BUDGET,
     grayscale: bool = False,
+    still: bool = False,
+    test_domains: int | None = None,
 ) -> BackgroundSource:
     """The background source of one domain; frames are produced or decoded on first use.
 
@@ -371,13 +413,27 @@ def make_background(
     :param background_dir: a user's folder of videos/images, or None for the built-in procedural banks
     :param frame_budget: most frames per source (DBC: 1000)
     :param grayscale: replicate the luma into the three channels (DBC's setting)
+    :param still: one still image per domain, as the SGFD authors' code reads it (a procedural texture's first
+        frame; a file read by ``cv2.imread`` and resized whole by ``cv2.resize``), else moving frames (a frame per
+        step: a procedural texture, a video, or an image centre-cropped and resized by area)
+    :param test_domains: the built-in test sources (None: the paper's one; see
+        :func:`~sgfd_envs.background_splits.check_test_domains`)
     """
     if isinstance(frame_budget, bool) or not isinstance(frame_budget, (int, np.integer)) or frame_budget < 1:
         raise ValueError(f"frame_budget must be a positive int, got {frame_budget!r}")
     check_background_split(split)
+    check_test_domains(test_domains, background_dir)
     if background_dir is None:
-        return ProceduralBackground(PROCEDURAL_SEEDS[split][domain], height, width, int(frame_budget), grayscale)
+        n_frames = 1 if still else int(frame_budget)
+        return ProceduralBackground(PROCEDURAL_SEEDS[split][domain], height, width, n_frames, grayscale)
     path = background_files(background_dir)[split][domain]
     if path.suffix.lower() in VIDEO_SUFFIXES:
+        if still:
+            raise ValueError(
+                f"background_dir: {str(path)!r} is a video, and backgrounds='still' shows one image per domain: "
+                "give images, or backgrounds='moving' to play videos"
+            )
         return VideoBackground(path, height, width, int(frame_budget), grayscale)
+    if still:
+        return ImageBackground(path, height, width, grayscale, crop=False, interpolation=cv2.INTER_LINEAR)
     return ImageBackground(path, height, width, grayscale)

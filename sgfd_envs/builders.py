@@ -1,31 +1,61 @@
 """The builders of every id, one per kind of id and each its ids' entry point (``gym.spec(id).entry_point``): they
 refuse by name the keyword arguments of another kind, check their own, say once per process when a built-in stand-in
-plays in place of a benchmark's data, and make the env."""
+plays in place of a benchmark's data (:mod:`sgfd_envs.building`), and make the env."""
 
 from __future__ import annotations
 
-import functools
-import inspect
-import os
-import sys
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, TypeVar, cast
+from typing import Any
 
 import gymnasium as gym
 from dm_control.mujoco import Physics
 from dm_control.rl import control
-from gymnasium.envs.registration import load_env_creator
 
 from sgfd_envs import domains
-from sgfd_envs.backgrounds import DEFAULT_FRAME_BUDGET, check_background_split, make_background, n_background_domains
+from sgfd_envs.background_splits import (
+    BACKGROUND_MOTIONS,
+    BACKGROUND_ROBOTS,
+    BGR,
+    CHANNEL_ORDERS,
+    CHANNELS_OF_COMPOSITING,
+    COLOUR_KEY,
+    COMPOSITINGS,
+    HIPBMDP_ROBOTS,
+    STILL,
+    check_choice,
+)
+from sgfd_envs.backgrounds import (
+    DEFAULT_FRAME_BUDGET,
+    BackgroundSource,
+    ChannelsReversed,
+    check_background_split,
+    make_background,
+    n_background_domains,
+)
 from sgfd_envs.benchmarks import dcs, dmcgb, dmcgb2
-from sgfd_envs.benchmarks.media import check_data_dir, davis_folder
+from sgfd_envs.benchmarks.media import davis_folder
 from sgfd_envs.benchmarks.scene import DEFAULT_TEXTURE_CACHE_MB, check_texture_cache_mb
+from sgfd_envs.building import (
+    MorphologyWarning,
+    StandInWarning,
+    env_kwargs_of,
+    refusing_other_kwargs,
+    stand_in_warned,
+    warn_once,
+)
 from sgfd_envs.causal_world import CausalWorldEnv
 from sgfd_envs.dmc import Distraction, DMCEnv, DomainLabel, check_image_size
-from sgfd_envs.morphology import SETTINGS, check_domain, select_setting
+from sgfd_envs.morphology import (
+    DEFAULT_MT_ROBOTS,
+    HIPBMDP,
+    HIPBMDP_FILES,
+    SETTINGS,
+    SPLIT_SETTINGS_OF_ROBOTS,
+    check_domain,
+    check_robots,
+    select_setting,
+)
 from sgfd_envs.registry import (
     BACKGROUND,
     CAUSAL_WORLD,
@@ -35,66 +65,12 @@ from sgfd_envs.registry import (
     MORPHOLOGY,
     check_benchmark_split,
     entry_of_kind,
-    stand_in,
-    task_entry,
 )
 from sgfd_envs.rendering import check_render
-from sgfd_envs.wrappers import ObserveParameter, check_observe_parameter, scale_to_unit
+from sgfd_envs.wrappers import FrameLag, ObserveParameter, check_observe_parameter, scale_to_unit
 
-Builder = TypeVar("Builder", bound=Callable[..., gym.Env])
-
-
-def _keywords(builder: Callable[..., gym.Env]) -> tuple[str, ...]:
-    """The keyword arguments a builder takes besides the id."""
-    return tuple(name for name in inspect.signature(builder).parameters if name != "env_id")
-
-
-def refusing_other_kwargs(builder: Builder) -> Builder:
-    """``builder`` refusing, in one line, a keyword argument it does not take (a background id given ``setting=``, an
-    MT id given ``background_dir=``), naming the id's kind and the keyword arguments it takes, where Python would
-    raise a TypeError."""
-    takes = _keywords(builder)
-
-    @functools.wraps(builder)
-    def build(env_id: str, *args: Any, **kwargs: Any) -> gym.Env:
-        unknown = [name for name in kwargs if name not in takes]
-        if unknown:
-            kind = task_entry(env_id).variation.replace("_", " ")
-            raise ValueError(
-                f"{env_id} does not take {', '.join(map(repr, unknown))}: {kind} ids take {', '.join(takes)}"
-            )
-        return builder(env_id, *args, **kwargs)
-
-    return cast(Builder, build)
-
-
-class StandInWarning(UserWarning):
-    """An env plays a built-in stand-in in place of a benchmark's data: its numbers are not the benchmark's."""
-
-
-_WARNED: set[str] = set()
-# The packages between a user's line and a builder's warning (gym.make, make_domain_vec_env, SB3's vector envs).
-_LIBRARIES = ("sgfd_envs", "gymnasium", "stable_baselines3")
-
-
-def _user_stacklevel() -> int:
-    """The ``stacklevel`` that makes a warning raised by the caller of this function name the user's line: the
-    first frame outside the packages of ``_LIBRARIES`` (those imported)."""
-    loaded = [sys.modules[name] for name in _LIBRARIES if name in sys.modules]
-    folders = tuple(f"{Path(str(module.__file__)).resolve().parent}{os.sep}" for module in loaded)
-    frame, level = sys._getframe(1), 1
-    while frame.f_back is not None and str(Path(frame.f_code.co_filename).resolve()).startswith(folders):
-        frame, level = frame.f_back, level + 1
-    return level
-
-
-def _stand_in(env_id: str, split: str, **env_kwargs: Any) -> str | None:
-    """:func:`sgfd_envs.registry.stand_in`, warned once per process per kind of stand-in, at the user's line."""
-    what = stand_in(env_id, split, **env_kwargs)
-    if what is not None and what not in _WARNED:
-        _WARNED.add(what)
-        warnings.warn(f"{env_id} split={split!r}: {what}", StandInWarning, stacklevel=_user_stacklevel())
-    return what
+# Their home before the builders' shared parts moved to sgfd_envs.building, kept.
+__all__ = ["MorphologyWarning", "StandInWarning", "env_kwargs_of"]
 
 
 @refusing_other_kwargs
@@ -104,6 +80,11 @@ def make_background_env(
     domain: int = 0,
     *,
     background_dir: str | Path | None = None,
+    backgrounds: str = STILL,
+    compositing: str = COLOUR_KEY,
+    test_domains: int | None = None,
+    background_channels: str | None = None,
+    robots: str = HIPBMDP_ROBOTS,
     frame_budget: int = DEFAULT_FRAME_BUDGET,
     grayscale: bool = False,
     obs_type: str = "pixels",
@@ -111,14 +92,25 @@ def make_background_env(
     render_mode: str | None = None,
     render: str = "benchmark",
 ) -> DMCEnv:
-    """A distracting-background env (entry point of the background ids).
+    """A distracting-background env (entry point of the background ids). The defaults are the SGFD paper's setup as
+    its authors' code built it: one still image per domain, put into the render of the local unmodified robot by
+    the authors' colour key, in OpenCV's BGR order; one test domain.
 
     :param env_id: a background id of :data:`SGFD_IDS`
     :param split: ``"train"`` or ``"test"`` (test sources never appear in training)
     :param domain: index of the background source within the split
-    :param background_dir: folder of videos/images (see :mod:`sgfd_envs.backgrounds`), None for the
-        built-in procedural backgrounds
-    :param frame_budget: most frames per background source (DBC: 1000)
+    :param background_dir: folder of images/videos (see :mod:`sgfd_envs.background_splits`; five images, the
+        first four training, the fifth testing, are the authors' setup), None for the built-in procedural stand-in
+    :param backgrounds: ``"still"`` (one image per domain, the paper's) or ``"moving"`` (a frame per agent step of a
+        procedural texture or a video, from a random start)
+    :param compositing: ``"colour_key"`` (the authors': the blue-dominant pixels of the whole render take the
+        background's) or ``"matte"`` (behind the robot by the render's coverage, floor and sky hidden)
+    :param test_domains: the built-in test backgrounds, None (the paper's one) or 1..4; a folder decides its own
+    :param background_channels: the channel order pasted, ``"bgr"`` (the authors' code: OpenCV's order into the RGB
+        render) or ``"rgb"``; None: the compositing's own (colour key: BGR, matte: RGB)
+    :param robots: ``"hipbmdp"`` (the local unmodified robot files the authors' code renders: HiP-BMDP's, with
+        their floor and sky colours) or ``"dm_control"`` (dm_control's own)
+    :param frame_budget: most frames per moving background source (DBC: 1000)
     :param grayscale: grey backgrounds, as DBC's Kinetics setting
     :param obs_type: ``"pixels"`` or ``"state"``
     :param image_size: height and width of the pixel observation
@@ -128,22 +120,36 @@ def make_background_env(
     entry = entry_of_kind(env_id, BACKGROUND)
     check_image_size(image_size)
     check_background_split(split)
-    count = n_background_domains(split, background_dir)
+    still = check_choice("backgrounds", backgrounds, BACKGROUND_MOTIONS) == STILL
+    check_choice("compositing", compositing, COMPOSITINGS)
+    channels = CHANNELS_OF_COMPOSITING[compositing] if background_channels is None else background_channels
+    check_choice("background_channels", channels, CHANNEL_ORDERS)
+    check_choice("robots", robots, BACKGROUND_ROBOTS)
+    count = n_background_domains(split, background_dir, test_domains)
     domain = check_domain(domain, count, split)
     check_render(render)
-    background = make_background(split, domain, image_size, image_size, background_dir, frame_budget, grayscale)
-    label = DomainLabel(split=split, domain=domain, n_domains=count)
-    return DMCEnv(
-        domains.load(entry.robot, entry.task),
-        label,
-        action_repeat=entry.action_repeat,
-        obs_type=obs_type,
-        image_size=image_size,
-        background=background,
-        render_mode=render_mode,
-        render=render,
-        stand_in=_stand_in(env_id, split, background_dir=background_dir),
+    background: BackgroundSource = make_background(
+        split, domain, image_size, image_size, background_dir, frame_budget, grayscale, still, test_domains
     )
+    if channels == BGR:
+        background = ChannelsReversed(background)
+    label = DomainLabel(split=split, domain=domain, n_domains=count)
+    if robots == HIPBMDP_ROBOTS:
+        dm_env = domains.hipbmdp.load(entry.robot, entry.task, HIPBMDP_FILES[entry.robot].unmodified_setting)
+    else:
+        dm_env = domains.load(entry.robot, entry.task)
+    what = stand_in_warned(env_id, split, background_dir=background_dir, backgrounds=backgrounds)
+    return DMCEnv(
+        dm_env, label, action_repeat=entry.action_repeat, obs_type=obs_type, image_size=image_size,
+        background=background, render_mode=render_mode, render=render, stand_in=what, compositing=compositing,
+    )  # fmt: skip
+
+
+_FINGER_FILES = (
+    "HiP-BMDP's finger files (the paper's) change only the size of the invisible touch-sensor sites: every setting "
+    "looks and moves alike, and on states only the touch readings differ once the finger touches the spinner; "
+    "robots='scaled' gives a finger whose distal link changes"
+)
 
 
 @refusing_other_kwargs
@@ -154,13 +160,16 @@ def make_morphology_env(
     *,
     setting: int | None = None,
     split_settings: Mapping[str, Sequence[int]] | None = None,
+    robots: str = DEFAULT_MT_ROBOTS,
+    frame_lag: bool = False,
     obs_type: str = "pixels",
     observe_parameter: bool = False,
     image_size: int = 84,
     render_mode: str | None = None,
     render: str = "benchmark",
 ) -> gym.Env:
-    """A modified-morphology env (entry point of the MT ids).
+    """A modified-morphology env (entry point of the MT ids). The defaults are the SGFD paper's Table 2 as its
+    authors' code built it: HiP-BMDP's robot files, split as the authors split them.
 
     :param env_id: an MT id of :data:`SGFD_IDS`
     :param split: ``"train"`` (default), ``"interpolation"`` or ``"extrapolation"``
@@ -168,8 +177,13 @@ def make_morphology_env(
     :param setting: pick one setting 1..10 directly instead of ``split``/``domain``; the env is then
         the single domain of no split (``split`` None, ``domain`` 0)
     :param split_settings: replace the settings of some splits, e.g. ``{"train": (1, 2, 3, 4)}``
+    :param robots: ``"hipbmdp"`` (HiP-BMDP's files, the paper's: train 2, 3, 5, 6, interpolation 4, extrapolation
+        10) or ``"scaled"`` (this package's scaled robots: train 1, 2, 4, 5, interpolation 3, extrapolation 10);
+        see :mod:`sgfd_envs.morphology`
+    :param frame_lag: observations two agent steps old, as the authors' published code gave its agent on these
+        tasks (a defect of that code, which Table 2's numbers carry; :class:`sgfd_envs.wrappers.FrameLag`)
     :param obs_type: ``"pixels"`` or ``"state"``
-    :param observe_parameter: append the varied length, scaled to [-1, 1] over the ten settings, to the
+    :param observe_parameter: append the varied quantity, scaled to [-1, 1] over the ten settings, to the
         state (see :class:`sgfd_envs.wrappers.ObserveParameter`); states only
     :param image_size: height and width of the pixel observation
     :param render_mode: None or ``"rgb_array"``
@@ -177,8 +191,13 @@ def make_morphology_env(
     """
     entry = entry_of_kind(env_id, MORPHOLOGY)
     check_observe_parameter(observe_parameter, obs_type)
-    label_split, label_domain, count, setting = select_setting(split, domain, setting, split_settings)
-    morphology = domains.morphology(entry.robot)
+    if not isinstance(frame_lag, bool):
+        raise ValueError(f"frame_lag must be True or False, got {frame_lag!r}")
+    table = SPLIT_SETTINGS_OF_ROBOTS[check_robots(robots)]
+    label_split, label_domain, count, setting = select_setting(split, domain, setting, split_settings, defaults=table)
+    if robots == HIPBMDP and entry.robot == "finger":
+        warn_once(f"{env_id}: {_FINGER_FILES}", MorphologyWarning)
+    morphology = domains.mt_morphology(robots, entry.robot)
     label = DomainLabel(
         split=label_split,
         domain=label_domain,
@@ -187,20 +206,15 @@ def make_morphology_env(
         morphology_parameter=morphology.parameter,
         morphology_value=morphology.value(setting),
     )
-    dm_env = domains.load(entry.robot, entry.task, morphology.scale(setting))
-    env = DMCEnv(
-        dm_env,
-        label,
-        action_repeat=entry.action_repeat,
-        obs_type=obs_type,
-        image_size=image_size,
-        render_mode=render_mode,
-        render=render,
-    )
-    if not observe_parameter:
-        return env
-    scaled = scale_to_unit(morphology.value(setting), morphology.value(SETTINGS[0]), morphology.value(SETTINGS[-1]))
-    return ObserveParameter(env, scaled, morphology.parameter)
+    dm_env = domains.load_mt(robots, entry.robot, entry.task, setting)
+    env: gym.Env = DMCEnv(
+        dm_env, label, action_repeat=entry.action_repeat, obs_type=obs_type, image_size=image_size,
+        render_mode=render_mode, render=render,
+    )  # fmt: skip
+    if observe_parameter:
+        low, high = morphology.value(SETTINGS[0]), morphology.value(SETTINGS[-1])
+        env = ObserveParameter(env, scale_to_unit(morphology.value(setting), low, high), morphology.parameter)
+    return FrameLag(env) if frame_lag else env
 
 
 def _benchmark_env(
@@ -228,7 +242,7 @@ def _benchmark_env(
         DomainLabel(split=split, domain=domain, n_domains=1),
         action_repeat=entry.action_repeat,
         distraction=distraction,
-        stand_in=_stand_in(env_id, split, **data_kwargs),
+        stand_in=stand_in_warned(env_id, split, **data_kwargs),
         **common,
     )
 
@@ -238,40 +252,6 @@ def _check_common(env_id: str, split: str, image_size: int, render: str, texture
     check_texture_cache_mb(texture_cache_mb)
     check_benchmark_split(env_id, split)
     check_render(render)
-
-
-def _dmcgb_family_distraction(
-    robot: str,
-    split: str,
-    intensity: float | None,
-    data_dir: str | Path | None,
-    background_dir: str | Path | None,
-    image_size: int,
-    render: str,
-    make_mode: Callable[[Physics], Distraction],
-    **distracting_cs_kwargs: Any,
-) -> Callable[[Physics], Distraction]:
-    """Check the data kwargs DMC-GB and DMC-GB2 share, and give their distraction's factory: DMC-GB's
-    ``distracting_cs`` at ``intensity`` for that split, ``make_mode(physics)`` for the others.
-
-    :param robot: the dm_control domain
-    :param distracting_cs_kwargs: more kwargs of :func:`sgfd_envs.benchmarks.dmcgb.distracting_cs`
-    """
-    intensity = dmcgb.check_intensity(split, intensity)
-    if data_dir is not None:
-        check_data_dir(data_dir)
-    if background_dir is not None:
-        davis_folder(background_dir)
-
-    def make_distraction(physics: Physics) -> Distraction:
-        if split == dmcgb.DISTRACTING_CS:
-            assert intensity is not None  # check_intensity requires one with this split
-            return dmcgb.distracting_cs(
-                physics, robot, intensity, image_size, background_dir, render, **distracting_cs_kwargs
-            )
-        return make_mode(physics)
-
-    return make_distraction
 
 
 @refusing_other_kwargs
@@ -307,7 +287,7 @@ def make_dmcgb_env(
     """
     entry = entry_of_kind(env_id, DMCGB)
     _check_common(env_id, split, image_size, render, texture_cache_mb)
-    make_distraction = _dmcgb_family_distraction(
+    make_distraction = dmcgb.family_distraction(
         entry.robot, split, intensity, data_dir, background_dir, image_size, render,
         lambda physics: dmcgb.DMCGBDistraction(physics, split, image_size, data_dir),
         texture_cache_mb=texture_cache_mb,
@@ -352,7 +332,7 @@ def make_dmcgb2_env(
     """
     entry = entry_of_kind(env_id, DMCGB2)
     _check_common(env_id, split, image_size, render, texture_cache_mb)
-    make_distraction = _dmcgb_family_distraction(
+    make_distraction = dmcgb.family_distraction(
         entry.robot, split, intensity, data_dir, background_dir, image_size, render,
         lambda physics: dmcgb2.DMCGB2Distraction(physics, entry.robot, split, image_size, data_dir, render),
         interpolation=dmcgb2.RESIZE, texture_cache_mb=texture_cache_mb,
@@ -463,12 +443,3 @@ def make_causal_world_env(
     variation = env.variation
     scaled = scale_to_unit(variation.value(env.setting), variation.value(SETTINGS[0]), variation.value(SETTINGS[-1]))
     return ObserveParameter(env, scaled, variation.parameter)
-
-
-def env_kwargs_of(env_id: str) -> tuple[str, ...]:
-    """The keyword arguments ``gym.make`` takes for an id (those of its kind's builder, its entry point).
-
-    :param env_id: one of :data:`~sgfd_envs.registry.TASKS`
-    """
-    builder = load_env_creator(task_entry(env_id).entry_point)
-    return _keywords(cast(Callable[..., gym.Env], builder))

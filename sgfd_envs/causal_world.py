@@ -4,8 +4,8 @@
 - ``SGFD/CW-pushing-v0``: push the block to the goal; its size (edge length) changes (appendix C.1).
 
 Each property has ten settings, spread evenly over Causal World's own range for it (its variable spaces
-A and B together: mass 0.015..0.1 kg, edge 0.055..0.095 m), and the splits of the MT ids: training
-settings 1, 2, 4, 5, interpolation 3, extrapolation 10 (:mod:`sgfd_envs.morphology`).
+A and B together: mass 0.015..0.1 kg, edge 0.055..0.095 m), and this package's own splits (those of the MT ids'
+scaled family): training settings 1, 2, 4, 5, interpolation 3, extrapolation 10 (:mod:`sgfd_envs.morphology`).
 
 Causal World 1.2 speaks gym's old API (``reset() -> obs``, ``step() -> 4-tuple``); shimmy's
 ``GymV21CompatibilityV0`` turns it into gymnasium's. It is optional: ``pip install -e ".[causalworld]"``.
@@ -21,7 +21,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sgfd_envs.morphology import N_SETTINGS, check_setting, select_setting
+from sgfd_envs.morphology import N_SETTINGS, PACKAGE_SPLIT_SETTINGS, check_setting, select_setting
 
 INSTALL_HINT = 'Causal World ids need the optional extra: pip install -e ".[causalworld]"'
 OBJECT = "tool_block"
@@ -141,7 +141,7 @@ class CausalWorldEnv(gym.Env[np.ndarray, np.ndarray]):
         if isinstance(skip_frame, bool) or not isinstance(skip_frame, int) or skip_frame < 1:
             raise ValueError(f"skip_frame must be a positive int, got {skip_frame!r}")
         self.split, self.domain, self.n_domains, self.setting = select_setting(
-            split, domain, setting, split_settings, ids="Causal World ids"
+            split, domain, setting, split_settings, ids="Causal World ids", defaults=PACKAGE_SPLIT_SETTINGS
         )
         self.task = task
         self.variation = VARIATIONS[task]

@@ -2,8 +2,9 @@
 
 Rendering (:mod:`sgfd_envs.rendering`) reuses one MuJoCo scene per env and draws what dm_control's
 ``physics.render`` draws (``render="benchmark"``, the default) or the same without shadows, reflections and
-multisampling (``render="fast"``). With a background source the floor (every plane geom) and the skybox are
-hidden, and the background goes behind the scene by the pass's coverage (:func:`~sgfd_envs.backgrounds.composite`).
+multisampling (``render="fast"``). A background source goes into the whole render by the SGFD authors' colour key
+(``compositing="colour_key"``, :func:`~sgfd_envs.backgrounds.colour_key`), or behind the scene by the pass's coverage
+with the floor (every plane geom) and the skybox hidden (``"matte"``, :func:`~sgfd_envs.backgrounds.composite`).
 
 The benchmark ids (:mod:`sgfd_envs.benchmarks`) pass a :class:`Distraction` instead: it changes what is
 drawn (materials, textures, the camera's pose for one render) and never the physics.
@@ -21,11 +22,12 @@ from dm_control.mujoco import Physics
 from dm_control.rl import control
 from gymnasium import spaces
 
-from sgfd_envs.backgrounds import BackgroundSource, composite
+from sgfd_envs.backgrounds import BackgroundSource, colour_key, composite
 from sgfd_envs.rendering import CameraRenderer, check_render, configure_offscreen_buffer
 from sgfd_envs.state import HasState
 
 OBS_TYPES = ("pixels", "state")
+COMPOSITINGS = ("colour_key", "matte")
 
 
 def check_image_size(image_size: int) -> int:
@@ -111,7 +113,9 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
     :param obs_type: ``"pixels"`` (uint8 (size, size, 3)) or ``"state"`` (float32 flat vector of
         dm_control's observation dict, in its order)
     :param image_size: height and width of pixel observations and renders
-    :param background: source of background frames behind the robot, None to render floor and skybox
+    :param background: source of background frames, None to render floor and skybox
+    :param compositing: how a background goes into the render: ``"matte"`` (behind the scene by its coverage, the
+        floor and the skybox hidden) or ``"colour_key"`` (the SGFD authors' mask of the blue-dominant pixels)
     :param camera_id: model camera to render
     :param render_mode: None or ``"rgb_array"`` (``render()`` returns the current frame)
     :param distraction: a benchmark's visual distraction (instead of ``background``); its generator is
@@ -139,7 +143,10 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         distraction: Distraction | None = None,
         render: str = "benchmark",
         stand_in: str | None = None,
+        compositing: str = "matte",
     ) -> None:
+        if compositing not in COMPOSITINGS:
+            raise ValueError(f"compositing must be one of {COMPOSITINGS}, got {compositing!r}")
         if background is not None and distraction is not None:
             raise ValueError("give either background= or distraction=, not both")
         if obs_type not in OBS_TYPES:
@@ -157,6 +164,7 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
         self.image_size = int(image_size)
         self.render_mode = render_mode
         self._background = background
+        self._matte = background is not None and compositing == "matte"
         self._distraction = distraction
         self._distraction_rng: np.random.Generator | None = None
         self._camera_id = camera_id
@@ -245,17 +253,19 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
                 self._dm_env.physics,
                 self.image_size,
                 self._camera_id,
-                hide_backdrop=self._background is not None,
+                hide_backdrop=self._matte,
                 render=self.render_setting,
             )
         if self._distraction is not None:
             return self._distraction.render(self._renderer, self._agent_steps)
         if self._background is None:
             return self._renderer.render()
-        rgb, coverage = self._renderer.render_with_coverage()
         start = int(self._background_phase * self._background.n_frames)
-        index = start + self._agent_steps
-        return composite(rgb, coverage, self._background.frame(index))
+        background = self._background.frame(start + self._agent_steps)
+        if not self._matte:
+            return colour_key(self._renderer.render(), background)
+        rgb, coverage = self._renderer.render_with_coverage()
+        return composite(rgb, coverage, background)
 
     def _observation(self, dm_observation: dict[str, np.ndarray]) -> np.ndarray:
         if self.obs_type == "state":

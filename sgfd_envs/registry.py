@@ -17,7 +17,14 @@ import gymnasium as gym
 
 from sgfd_envs.background_splits import BACKGROUND_SPLITS, n_background_domains
 from sgfd_envs.benchmarks import facts
-from sgfd_envs.morphology import MORPHOLOGY_SPLITS, split_settings_of
+from sgfd_envs.morphology import (
+    DEFAULT_MT_ROBOTS,
+    MORPHOLOGY_SPLITS,
+    PACKAGE_SPLIT_SETTINGS,
+    SPLIT_SETTINGS_OF_ROBOTS,
+    check_robots,
+    split_settings_of,
+)
 
 BACKGROUND = "background"
 MORPHOLOGY = "morphology"
@@ -178,16 +185,21 @@ def n_domains(env_id: str, split: str = "train", **env_kwargs) -> int:
 
     :param env_id: one of :data:`ENV_IDS`
     :param split: a split of the id (see :func:`splits`)
-    :param env_kwargs: the kwargs the envs would get; ``background_dir`` and ``split_settings`` matter
+    :param env_kwargs: the kwargs the envs would get; ``background_dir``, ``test_domains``, ``robots`` and
+        ``split_settings`` matter
     """
     variation = task_entry(env_id).variation
     if variation == BACKGROUND:
-        return n_background_domains(split, env_kwargs.get("background_dir"))
+        return n_background_domains(split, env_kwargs.get("background_dir"), env_kwargs.get("test_domains"))
     if variation in BENCHMARK_KINDS:
         # One distribution per mode; its episodes resample the distraction.
         check_benchmark_split(env_id, split)
         return 1
-    return len(split_settings_of(split, env_kwargs.get("split_settings")))
+    if variation == CAUSAL_WORLD:
+        defaults = PACKAGE_SPLIT_SETTINGS
+    else:
+        defaults = SPLIT_SETTINGS_OF_ROBOTS[check_robots(env_kwargs.get("robots", DEFAULT_MT_ROBOTS))]
+    return len(split_settings_of(split, env_kwargs.get("split_settings"), defaults=defaults))
 
 
 def evaluation_modes(env_id: str) -> tuple[tuple[str, dict[str, Any]], ...]:
@@ -205,7 +217,11 @@ def evaluation_modes(env_id: str) -> tuple[tuple[str, dict[str, Any]], ...]:
 
 
 # What a split shows in place of a benchmark's data when the kwarg that takes the data is not given.
-_PAPER_BACKGROUNDS = "procedural backgrounds stand in for the paper's Kinetics clips; give background_dir="
+_PAPER_IMAGES = (
+    "procedural still images stand in for the paper's Kinetics images; give background_dir= (five images: the first "
+    "four train, the fifth tests)"
+)
+_MOVING_BACKGROUNDS = "procedural clips stand in for Kinetics clips; give background_dir="
 _DMCGB_DATA = "procedural colour sets and clips stand in for DMC-GB's data; give data_dir= (DMC-GB's src/env/data)"
 _DAVIS = "procedural clips stand in for DAVIS 2017; give background_dir= (DAVIS's JPEGImages/480p)"
 
@@ -216,11 +232,13 @@ def stand_in(env_id: str, split: str = "train", **env_kwargs: Any) -> str | None
 
     :param env_id: one of :data:`ENV_IDS`
     :param split: a split of the id
-    :param env_kwargs: the env's kwargs (``data_dir``, ``background_dir``, ``distractions`` matter)
+    :param env_kwargs: the env's kwargs (``data_dir``, ``background_dir``, ``backgrounds``, ``distractions`` matter)
     """
     variation = task_entry(env_id).variation
     if variation == BACKGROUND:
-        return _PAPER_BACKGROUNDS if env_kwargs.get("background_dir") is None else None
+        if env_kwargs.get("background_dir") is not None:
+            return None
+        return _MOVING_BACKGROUNDS if env_kwargs.get("backgrounds") == "moving" else _PAPER_IMAGES
     if variation not in BENCHMARK_KINDS or split == "train":
         return None
     if split == facts.DISTRACTING_CS:

@@ -15,6 +15,8 @@ from sgfd_envs.state import ResumableState
 if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
+    Normalize = Callable[[VecEnv, bool], VecEnv]
+
 
 def _stable_baselines3() -> Any:
     """SB3's ``vec_env`` module, or one line saying how to install it (an environments-only install lacks it).
@@ -80,3 +82,28 @@ def make_domain_vec_env(
     vec_env = (vec_env_cls or default_vec_env_cls)(factories)
     vec_env.seed(seed)
     return vec_env
+
+
+def wrap_like_training(
+    env: VecEnv, frame_stack: int | None, normalize: Normalize | None = None, eval_env: bool = True
+) -> VecEnv:
+    """``env`` wrapped as rl-zoo3 wraps its training envs (and sgfd-zoo its evaluation envs): normalised by
+    ``normalize(env, eval_env)``, its last ``frame_stack`` observations stacked, its images made channel-first.
+
+    :param env: a vector env (:func:`make_domain_vec_env`)
+    :param frame_stack: observations stacked (None or 0: none)
+    :param normalize: the normaliser to apply, if any
+    :param eval_env: whether ``env`` evaluates (for ``normalize``)
+    """
+    from gymnasium import spaces
+    from stable_baselines3.common.preprocessing import is_image_space, is_image_space_channels_first
+
+    vec_env = _stable_baselines3()
+    if normalize is not None:
+        env = normalize(env, eval_env)
+    if frame_stack:
+        env = vec_env.VecFrameStack(env, frame_stack)
+    space = env.observation_space
+    if isinstance(space, spaces.Box) and is_image_space(space) and not is_image_space_channels_first(space):
+        env = vec_env.VecTransposeImage(env)
+    return env

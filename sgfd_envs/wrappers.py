@@ -59,3 +59,41 @@ class ObserveParameter(gym.ObservationWrapper[np.ndarray, np.ndarray, np.ndarray
 
     def observation(self, observation: np.ndarray) -> np.ndarray:
         return np.append(observation, self.parameter_value).astype(self.observation_space.dtype, copy=False)
+
+
+# Agent steps by which the SGFD authors' MT observations lag (see FrameLag).
+AUTHORS_FRAME_LAG = 2
+
+
+class FrameLag(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
+    """Observations ``lag`` agent steps old: at step t the observation of step max(t - lag, 0), the reset's for the
+    first ``lag`` steps; rewards, ends and infos are the current step's.
+
+    It reproduces a defect of the SGFD authors' published code on the MT tasks: their ``utils.FrameStack`` wraps
+    mtenv's envs, whose observations are already stacks of 3 frames, and returns the oldest of its 3 entries, so
+    their agent saw the stack of two agent steps earlier. Stacked by the zoo (``frame_stack: 3``), the frames of
+    this wrapper give that stack.
+
+    :param env: the env
+    :param lag: agent steps (the authors' code: :data:`AUTHORS_FRAME_LAG`)
+    """
+
+    def __init__(self, env: gym.Env, lag: int = AUTHORS_FRAME_LAG) -> None:
+        super().__init__(env)
+        if isinstance(lag, bool) or not isinstance(lag, int) or lag < 1:
+            raise ValueError(f"lag must be a positive int, got {lag!r}")
+        self.lag = lag
+        # The last lag + 1 observations, oldest first: a plain list, so that a resumed run gets it back
+        # (sgfd_envs.state.ResumableState).
+        self.history: list[np.ndarray] = []
+
+    def reset(self, **kwargs):  # type: ignore[no-untyped-def]
+        observation, info = self.env.reset(**kwargs)
+        self.history = [observation] * (self.lag + 1)
+        return observation, info
+
+    def step(self, action):  # type: ignore[no-untyped-def]
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        self.history = [*self.history[1:], observation]
+        # a copy: the reset's observation and the first steps' are one object in the history
+        return self.history[0].copy(), reward, terminated, truncated, info

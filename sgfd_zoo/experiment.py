@@ -10,17 +10,16 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, cast
 
-from gymnasium import spaces
 from rl_zoo3.exp_manager import ExperimentManager
 from rl_zoo3.utils import ALGOS, get_class_by_name
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import ProgressBarCallback
-from stable_baselines3.common.preprocessing import is_image_space, is_image_space_channels_first
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecFrameStack, VecTransposeImage
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 import sgfd_envs
 from sb3_sgfd.common.validation import RefusedTransition
 from sgfd_envs.backgrounds import overlay_bank
+from sgfd_envs.vec_env import wrap_like_training as wrap_like_training  # (its home before it moved there, kept)
 from sgfd_zoo.algos import SGFD_ALGOS, classifier_start_warning, hyperparams_file, is_sgfd
 from sgfd_zoo.arguments import TrainingStopped, ZooError, train_command
 from sgfd_zoo.callbacks import CSVLogCallback, MultiSplitEvalCallback, ProgressCallback
@@ -52,7 +51,7 @@ from sgfd_zoo.runs.checkpoints import Checkpoint
 from sgfd_zoo.runs.files import FileWriteError, atomic_write, write_failure
 from sgfd_zoo.runs.folders import RunFolder, mark_finished
 from sgfd_zoo.runs.locks import ClaimedRun, claim_new_run, claim_run
-from sgfd_zoo.runs.resuming import choose_checkpoint, load_checkpoint, prepare_restart, run_to_resume
+from sgfd_zoo.runs.resuming import choose_checkpoint, envs_as_trained, load_checkpoint, prepare_restart, run_to_resume
 from sgfd_zoo.runs.safe import refuse_links
 from sgfd_zoo.runs.training_state import RestoreTrainingState
 
@@ -66,20 +65,19 @@ class SGFDExperimentManager(ExperimentManager):
 
     - hyperparameters from ``sgfd_zoo/hyperparams/<algo>.yml`` unless ``-conf`` names another file;
     - the training VecEnv has one sub-env per training domain (``n_envs`` defaults to their number);
-    - evaluation envs get the same env kwargs as training (rl-zoo3 drops yaml ``env_kwargs`` there),
-      and evaluation covers every split: training domains and the unseen ones;
-    - one run, one folder, one writer: a new run claims its folder before anything is built (runs started
-      together each get their own), and the run's lock is held while it trains (:mod:`sgfd_zoo.runs.locks`);
+    - evaluation envs get the same env kwargs as training (rl-zoo3 drops yaml ``env_kwargs`` there), and evaluation
+      covers every split: training domains and the unseen ones;
+    - one run, one folder, one writer: a new run claims its folder before anything is built (runs started together each
+      get their own), and the run's lock is held while it trains (:mod:`sgfd_zoo.runs.locks`);
     - checkpoints (model + replay buffer) every ``save_freq`` steps, each file written whole and checked
       (:class:`~sgfd_zoo.runs.checkpoint_callback.ResumableCheckpointCallback`); ``resume=True`` continues the newest
-      run of this algo and env from its newest checkpoint that verifies, the one before when the newest does not;
-    - Ctrl-C (or SIGTERM) stops training at a checkpoint and a full disk stops it cleanly: a
-      :class:`TrainingStopped` says how to continue, and the run is not finished; the final model is followed by
-      ``finished.json``;
+      run of this algo and env, on the envs it trained on, from its newest checkpoint that verifies, the one before when
+      the newest does not;
+    - Ctrl-C (or SIGTERM) stops training at a checkpoint and a full disk stops it cleanly: a :class:`TrainingStopped`
+      says how to continue, and the run is not finished; the final model is followed by ``finished.json``;
     - a progress bar by default when the output is a terminal, and progress reports to ``progress_reporter``;
-    - a policy that cannot read the observations, and unknown keys in the kwargs hyperparameters (policy,
-      features extractor, representation, replay buffer), are refused in one line, naming what fits, before
-      anything is built.
+    - a policy that cannot read the observations, and unknown keys in the kwargs hyperparameters (policy, features
+      extractor, representation, replay buffer), are refused in one line, naming what fits, before anything is built.
 
     Takes rl-zoo3's arguments, plus:
 
@@ -88,14 +86,14 @@ class SGFDExperimentManager(ExperimentManager):
     :param progress: Show a progress bar; None: when stdout is a terminal
     :param run_id: Write to (and resume) the run folder ``<EnvName>_<run_id>``; None: a new folder, claimed
     :param progress_reporter: Called every few seconds with a dict of the run's progress (``sgfd-zoo sweep``)
-    :param check_only: Only check the configuration: ``setup_experiment`` builds the model on the env with a
-        tiny replay buffer, writes nothing and returns no model
+    :param check_only: Only check the configuration: ``setup_experiment`` builds the model on the env with a tiny replay
+        buffer, writes nothing and returns no model
     :param command: The ``sgfd-zoo train`` flags of this run, to print the command that continues it
-    :param default_save_freq: No ``--save-freq`` was given: checkpoint every :func:`default_checkpoint_interval`
-        steps of this run
+    :param default_save_freq: No ``--save-freq`` was given: checkpoint every :func:`default_checkpoint_interval` steps
+        of this run
     :param default_eval_freq: No ``--eval-freq`` was given: no warning when rl-zoo3's default is longer than the run
-    :param classifier_start: ``classifier_start`` of an SGFD algorithm (``--classifier-start``); the others have
-        no classifier and ignore it, so that a sweep may mix them
+    :param classifier_start: ``classifier_start`` of an SGFD algorithm (``--classifier-start``); the others have no
+        classifier and ignore it, so that a sweep may mix them
     """
 
     def __init__(
@@ -329,6 +327,8 @@ class SGFDExperimentManager(ExperimentManager):
         run = RunFolder(self.claimed.path)
         if self.resume:
             self.checkpoint = choose_checkpoint(run, self.train_command(resume=False))
+            kwargs = envs_as_trained(run, self.env_name.gym_id, self.env_kwargs, self.eval_env_kwargs)
+            self.env_kwargs, self.eval_env_kwargs = kwargs
         elif self.run_id is not None:
             prepare_restart(run, self.train_command(resume=True))
 
@@ -341,6 +341,8 @@ class SGFDExperimentManager(ExperimentManager):
     def _save_config(self, saved_hyperparams: dict[str, Any]) -> None:
         """Written whole, instead of rl-zoo3's files: :meth:`sgfd_zoo.runs.folders.RunFolder.record_start`."""
         args = OrderedDict([(key, vars(self.args)[key]) for key in sorted(vars(self.args))])
+        if self.env_kwargs != (saved_hyperparams.get("env_kwargs") or {}):  # a resumed run's family added
+            saved_hyperparams["env_kwargs"] = dict(self.env_kwargs)
         start = 0 if self.checkpoint is None else self.checkpoint.num_timesteps
         RunFolder(Path(self.save_path)).record_start(saved_hyperparams, args, self.command, start)
         print(f"Log path: {self.save_path}")
@@ -487,15 +489,3 @@ class SGFDExperimentManager(ExperimentManager):
                     f"free space, then {self._next_command()}"
                 ) from None
         return None
-
-
-def wrap_like_training(env: VecEnv, frame_stack: int | None, normalize=None, eval_env: bool = True) -> VecEnv:
-    """Frame stacking and channel-first transposition, as rl-zoo3 wraps its training envs."""
-    if normalize is not None:
-        env = normalize(env, eval_env)
-    if frame_stack:
-        env = VecFrameStack(env, frame_stack)
-    space = env.observation_space
-    if isinstance(space, spaces.Box) and is_image_space(space) and not is_image_space_channels_first(space):
-        env = VecTransposeImage(env)
-    return env

@@ -28,6 +28,7 @@ Facts taken from its code:
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -37,8 +38,9 @@ from dm_control.mujoco import Physics
 
 from sgfd_envs.benchmarks import facts
 from sgfd_envs.benchmarks.dcs import DISTRACTIONS, DCSDistraction
-from sgfd_envs.benchmarks.media import ClipBank, colour_set, dmcgb_clips
+from sgfd_envs.benchmarks.media import ClipBank, check_data_dir, colour_set, davis_folder, dmcgb_clips
 from sgfd_envs.benchmarks.scene import DEFAULT_TEXTURE_CACHE_MB, TextureSlot, rgb_attribute, suite_texture_data
+from sgfd_envs.dmc import Distraction
 from sgfd_envs.rendering import CameraRenderer
 
 # The facts the id table reads (benchmarks/facts.py, import-light), under this module's names.
@@ -159,6 +161,40 @@ def distracting_cs(
         background_dir, update_every=DISTRACTING_CS_UPDATE_EVERY, render=render, interpolation=interpolation,
         texture_cache_mb=texture_cache_mb,
     )  # fmt: skip
+
+
+def family_distraction(
+    robot: str,
+    split: str,
+    intensity: float | None,
+    data_dir: str | Path | None,
+    background_dir: str | Path | None,
+    image_size: int,
+    render: str,
+    make_mode: Callable[[Physics], Distraction],
+    **distracting_cs_kwargs: Any,
+) -> Callable[[Physics], Distraction]:
+    """Check the data kwargs DMC-GB and DMC-GB2 share, and give their distraction's factory: DMC-GB's
+    ``distracting_cs`` at ``intensity`` for that split, ``make_mode(physics)`` for the others.
+
+    :param robot: the dm_control domain
+    :param distracting_cs_kwargs: more kwargs of :func:`distracting_cs`
+    """
+    intensity = check_intensity(split, intensity)
+    if data_dir is not None:
+        check_data_dir(data_dir)
+    if background_dir is not None:
+        davis_folder(background_dir)
+
+    def make_distraction(physics: Physics) -> Distraction:
+        if split == DISTRACTING_CS:
+            assert intensity is not None  # check_intensity requires one with this split
+            return distracting_cs(
+                physics, robot, intensity, image_size, background_dir, render, **distracting_cs_kwargs
+            )
+        return make_mode(physics)
+
+    return make_distraction
 
 
 class SceneColours:

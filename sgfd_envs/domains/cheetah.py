@@ -53,13 +53,27 @@ def load(task: str, scale: float = 1.0) -> control.Environment:
     """
     if task not in TASKS:
         raise ValueError(f"cheetah task must be one of {TASKS}, got {task!r}")
-    root = _scaled_model(scale)
-    # MuJoCo deprecates <compiler settotalmass> and logs a warning at every compile; rescaling the
-    # compiled model instead gives the same model arrays (tested against dm_control's cheetah).
+    return environment(compile_model(_scaled_model(scale), common.ASSETS))
+
+
+def compile_model(root: ET.Element, assets: dict[str, bytes]) -> dm_cheetah.Physics:
+    """A cheetah model tree compiled as MuJoCo compiles it with its ``<compiler settotalmass>``.
+
+    MuJoCo deprecates ``settotalmass`` and logs a warning at every compile; rescaling the compiled model instead
+    gives the same model arrays (tested against dm_control's cheetah).
+
+    :param root: the model tree (its ``settotalmass`` is taken out of it)
+    :param assets: the files its includes name
+    """
     total_mass = float(find_child(root, "compiler").attrib.pop("settotalmass"))
-    physics = dm_cheetah.Physics.from_xml_string(to_xml_string(root), common.ASSETS)
+    physics = dm_cheetah.Physics.from_xml_string(to_xml_string(root), assets)
     mujoco.mj_setTotalmass(physics.model.ptr, total_mass)
     mujoco.mj_setConst(physics.model.ptr, physics.data.ptr)
+    return physics
+
+
+def environment(physics: dm_cheetah.Physics) -> control.Environment:
+    """dm_control's run task on ``physics``, with no time limit (the gymnasium env counts steps)."""
     return control.Environment(
         physics, dm_cheetah.Cheetah(), time_limit=float("inf"), control_timestep=CONTROL_TIMESTEP
     )

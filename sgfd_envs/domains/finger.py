@@ -55,5 +55,9 @@ def load(task: str, scale: float = 1.0) -> control.Environment:
     if task not in TASKS:
         raise ValueError(f"finger task must be one of {TASKS}, got {task!r}")
     physics = dm_finger.Physics.from_xml_string(model_xml(scale), common.ASSETS)
-    finger_task = dm_finger.Spin() if task == "spin" else dm_finger.Turn(target_radius=_TURN_TARGET_RADIUS)
-    return control.Environment(physics, finger_task, time_limit=float("inf"), control_timestep=CONTROL_TIMESTEP)
+    return control.Environment(physics, task_of(task), time_limit=float("inf"), control_timestep=CONTROL_TIMESTEP)
+
+
+def task_of(task: str) -> dm_finger.Spin | dm_finger.Turn:
+    """dm_control's task object of ``"spin"`` or ``"turn"`` (turn_easy)."""
+    return dm_finger.Spin() if task == "spin" else dm_finger.Turn(target_radius=_TURN_TARGET_RADIUS)

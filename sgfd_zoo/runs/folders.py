@@ -40,6 +40,7 @@ import numpy as np
 import yaml
 
 import sgfd_envs
+from sgfd_envs.families import env_kwargs_as_trained, family_kwargs
 from sgfd_zoo.algos import SGFD_ALGOS
 from sgfd_zoo.arguments import ZooError, check_env_id
 from sgfd_zoo.runs import provenance
@@ -217,7 +218,8 @@ class RunFolder(NamedRun):
         ``command.json`` it replaces is removed), and a block of ``versions.txt`` (appended: a resumed run's later
         steps may come from other code).
 
-        :param config: the hyperparameters as rl-zoo3 saves them
+        :param config: the hyperparameters as rl-zoo3 saves them (its ``env_kwargs`` decide the family recorded in
+            ``args.yml``'s ``env_family``)
         :param args: rl-zoo3's arguments
         :param argv: the ``sgfd-zoo train`` flags of this process (a sweep's run too: its process is a Ray worker);
             None where they are unknown (a manager built in Python): no command is recorded
@@ -231,6 +233,7 @@ class RunFolder(NamedRun):
             for label, mode in sgfd_envs.evaluation_modes(self.env_id)
         }
         args = {**args, "stand_in": {label: what for label, what in stand_ins.items() if what is not None}}
+        args["env_family"] = family_kwargs(self.env_id, env_kwargs)  # what a run without it trained on: the earlier
         # A URL's credentials (an Optuna --storage) are not kept: the files are shared, and readable by others.
         write_text(self.root, self.config_dir / "config.yml", yaml.dump(redact_values(config)))
         write_text(self.root, self.config_dir / "args.yml", yaml.dump(redact_values(args)))
@@ -253,7 +256,9 @@ class RunFolder(NamedRun):
 
     @property
     def env_kwargs(self) -> dict[str, Any]:
-        return dict(self.args.get("env_kwargs") or self.config.get("env_kwargs") or {})
+        """The env kwargs it trained with, its envs' family among them (``env_family``; sgfd_envs.families)."""
+        recorded = dict(self.args.get("env_kwargs") or self.config.get("env_kwargs") or {})
+        return env_kwargs_as_trained(self.env_id, recorded, self.args.get("env_family"))
 
     @property
     def frame_stack(self) -> int | None:

@@ -12,6 +12,7 @@ from typing import Any
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
+from sgfd_envs.families import env_kwargs_as_trained
 from sgfd_zoo.arguments import ZooError
 from sgfd_zoo.config_checks import first_line
 from sgfd_zoo.runs import training_state
@@ -71,6 +72,20 @@ def choose_checkpoint(run: RunFolder, restart_command: str) -> Checkpoint:
             file=sys.stderr,
         )
     return checkpoint
+
+
+def envs_as_trained(run: RunFolder, env_id: str, *env_kwargs: dict[str, Any]) -> list[dict[str, Any]]:
+    """The env kwargs (of training, of evaluation) a resumed run goes on with: those given, and for a run recorded
+    before the SGFD ids' families of envs (no ``env_family`` in its readable ``args.yml``), the family it trained on
+    where they name none (:func:`sgfd_envs.families.env_kwargs_as_trained`).
+
+    :param run: the run folder
+    :param env_id: its id
+    :param env_kwargs: the env kwargs given, each
+    """
+    if not run.args or "env_family" in run.args:
+        return [dict(kwargs) for kwargs in env_kwargs]
+    return [env_kwargs_as_trained(env_id, kwargs, None) for kwargs in env_kwargs]
 
 
 def prepare_restart(run: RunFolder, resume_command: str) -> None:

@@ -19,6 +19,7 @@ import pytest
 from stable_baselines3 import SAC
 
 from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, DomainReplayBuffer
+from sgfd_zoo.runs.folders import RunFolder
 
 LEGACY = Path(__file__).parents[1] / "data" / "legacy" / "0.1.0"
 ALGOS = {
@@ -92,3 +93,7 @@ def test_a_zoo_run_checkpointed_by_version_0_1_0_resumes(tmp_path):
     run = folder / "sgfd_sac" / "SGFD-MT-walker-walk-v0_1"
     assert (run / "finished.json").exists()
     assert SGFD_SAC.load(run / "SGFD-MT-walker-walk-v0.zip", device="cpu").num_timesteps == 600
+    # it went on on the envs it trained on (this package's scaled robots, the MT ids' only family at 0.1.0), and
+    # says so now (sgfd_envs.families)
+    resumed = RunFolder(run)
+    assert resumed.args["env_family"] == {"robots": "scaled"} and resumed.config["env_kwargs"]["robots"] == "scaled"

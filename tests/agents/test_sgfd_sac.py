@@ -23,7 +23,7 @@ TINY = dict(
 
 
 def state_env(n_envs: int | None = None):
-    # The torso length in the state: the domain classifier can tell the domains apart within a few updates.
+    # The varied length in the state: the domain classifier can tell the domains apart within a few updates.
     return sgfd_envs.make_domain_vec_env(ENV_ID, split="train", n_envs=n_envs, obs_type="state", observe_parameter=True)
 
 
@@ -146,7 +146,7 @@ def test_learns_on_the_training_domains_and_its_weights_leave_one():
     assert stats["weight_min"] < 1.0 < stats["weight_max"]
     assert 0.3 < stats["weight_ess"] < 1.0
     assert stats["decorrelation_loss_after"] < stats["decorrelation_loss_before"]
-    # The most salient feature is the appended torso length: the one that tells the domains apart.
+    # The most salient feature is the appended length: the one that tells the domains apart.
     batch = model.replay_buffer.sample(128)
     z = model.encode(batch.observations)
     assert int(feature_probabilities(model.classifier, z).argmax()) == z.shape[1] - 1

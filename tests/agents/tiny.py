@@ -22,7 +22,7 @@ OVERLAYS = np.random.default_rng(0).integers(0, 256, size=(4, 24, 24, 3), dtype=
 
 
 def state_env() -> VecEnv:
-    """4 training domains, the state with the torso length (the domains are told apart at once)."""
+    """4 training domains, the state with the varied length (the domains are told apart at once)."""
     return sgfd_envs.make_domain_vec_env(ENV_ID, obs_type="state", observe_parameter=True)
 
 

@@ -16,6 +16,7 @@ from huggingface_sb3 import EnvironmentName
 import sgfd_envs
 from sb3_sgfd import SGFD_SAC
 from sgfd_analysis import figures
+from sgfd_envs.families import family_kwargs
 from sgfd_zoo.cli import main as zoo_main
 from sgfd_zoo.experiment import wrap_like_training
 from sgfd_zoo.report.plot import mean_and_band
@@ -33,7 +34,9 @@ def write_run(folder, algo, run_id, model, seed, progress_rows=None, config=None
     (run / ENV_NAME).mkdir(parents=True)
     if model is not None:
         model.save(run / f"{ENV_NAME}.zip")
-    (run / ENV_NAME / "args.yml").write_text(yaml.dump({"seed": seed, "env_kwargs": ENV_KWARGS}))
+    # the family of envs it ran on, as a run of this version records it (sgfd_zoo.runs.folders.RunFolder.record_start)
+    family = family_kwargs(ENV_ID, ENV_KWARGS)
+    (run / ENV_NAME / "args.yml").write_text(yaml.dump({"seed": seed, "env_kwargs": ENV_KWARGS, "env_family": family}))
     base = {"frame_stack": FRAME_STACK, "env_kwargs": ENV_KWARGS}
     (run / ENV_NAME / "config.yml").write_text(yaml.dump({**base, **(config or {})}))
     if progress_rows is not None:
@@ -78,7 +81,7 @@ def decode(path):
 
 def test_run_fixture_is_found_like_a_trained_run(log_folder):
     (run,) = find_runs(log_folder, ["sgfd_sac"], [ENV_ID])
-    assert run.frame_stack == FRAME_STACK and run.env_kwargs == ENV_KWARGS
+    assert run.frame_stack == FRAME_STACK and run.env_kwargs == {**ENV_KWARGS, "robots": "hipbmdp"}
 
 
 def test_action_saliency_matches_finite_differences(log_folder):

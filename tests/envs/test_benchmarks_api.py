@@ -327,9 +327,9 @@ def test_the_demo_draws_every_task_of_a_benchmark_in_every_split():
 
 
 def test_a_stand_in_is_named_once_flagged_in_info_and_known_without_an_env(tmp_path, monkeypatch):
-    from sgfd_envs import builders
+    from sgfd_envs import building
 
-    monkeypatch.setattr(builders, "_WARNED", set())
+    monkeypatch.setattr(building, "_WARNED", set())
     assert sgfd_envs.stand_in("DMCGB/walker-walk-v0", "train") is None
     assert "data_dir=" in sgfd_envs.stand_in("DMCGB/walker-walk-v0", "video_hard")
     assert sgfd_envs.stand_in("DMCGB/walker-walk-v0", "video_hard", data_dir=tmp_path) is None

@@ -17,7 +17,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 import sgfd_envs
 from sgfd_envs import domains
-from sgfd_envs.builders import StandInWarning, make_background_env, make_morphology_env
+from sgfd_envs.builders import MorphologyWarning, StandInWarning, make_background_env, make_morphology_env
 
 BACKGROUND_IDS = [env_id for env_id in sgfd_envs.SGFD_IDS if "/MT-" not in env_id]
 MT_IDS = [env_id for env_id in sgfd_envs.SGFD_IDS if "/MT-" in env_id]
@@ -79,8 +79,10 @@ def test_gymnasium_and_sb3_checkers_pass_without_warnings(env_id, obs_type):
             gymnasium_check_env(env.unwrapped)
         with gym.make(env_id, obs_type=obs_type, render="fast") as env:
             sb3_check_env(env, warn=True)
-    # The one warning that is meant: the procedural backgrounds stand in for the paper's clips.
-    messages = [str(warning.message) for warning in caught if not issubclass(warning.category, StandInWarning)]
+    # The warnings that are meant: the procedural backgrounds stand in for the paper's images; HiP-BMDP's finger
+    # files change nothing the agent sees.
+    meant = (StandInWarning, MorphologyWarning)
+    messages = [str(warning.message) for warning in caught if not issubclass(warning.category, meant)]
     if obs_type == "state":
         # dm_control's state specs are unbounded; gymnasium flags any infinite Box bound.
         messages = [m for m in messages if "infinity" not in m]
@@ -181,13 +183,17 @@ def test_splits_and_domain_counts():
     assert sgfd_envs.splits("SGFD/MT-walker-walk-v0") == ("train", "interpolation", "extrapolation")
     assert sgfd_envs.test_splits("SGFD/MT-finger-spin-v0") == ("interpolation", "extrapolation")
     assert sgfd_envs.n_domains("SGFD/walker-walk-v0") == 4
-    assert sgfd_envs.n_domains("SGFD/walker-walk-v0", "test") == 4
+    assert sgfd_envs.n_domains("SGFD/walker-walk-v0", "test") == 1  # the paper's one unseen background
+    assert sgfd_envs.n_domains("SGFD/walker-walk-v0", "test", test_domains=4) == 4
     assert [sgfd_envs.n_domains("SGFD/MT-cheetah-run-v0", s) for s in ("train", "interpolation", "extrapolation")] == [
         4,
         1,
         1,
     ]
     assert sgfd_envs.n_domains("SGFD/MT-cheetah-run-v0", split_settings={"train": (1, 2, 3)}) == 3
+    assert sgfd_envs.n_domains("SGFD/MT-cheetah-run-v0", robots="scaled") == 4
+    with pytest.raises(ValueError, match=r"robots must be one of \('hipbmdp', 'scaled'\) for MT ids, got 'big'"):
+        sgfd_envs.n_domains("SGFD/MT-cheetah-run-v0", robots="big")
 
 
 @pytest.mark.parametrize(
@@ -208,18 +214,20 @@ def test_make_domain_vec_env_gives_one_monitored_sub_env_per_domain():
     try:
         assert isinstance(venv, DummyVecEnv) and venv.num_envs == 4
         assert all(is_wrapped(env, Monitor) for env in venv.envs)
-        assert [env.unwrapped.setting for env in venv.envs] == [1, 2, 4, 5]
+        assert [env.unwrapped.setting for env in venv.envs] == [2, 3, 5, 6]  # HiP-BMDP's files, the authors' split
         venv.reset()
         _, _, _, infos = venv.step(np.zeros((4, 6), dtype=np.float32))
         assert [info["domain"] for info in infos] == [0, 1, 2, 3]
-        assert [info["setting"] for info in infos] == [1, 2, 4, 5]
+        assert [info["setting"] for info in infos] == [2, 3, 5, 6]
     finally:
         venv.close()
 
 
 def test_make_domain_vec_env_seeds_sub_env_i_with_seed_plus_i():
     def first_observations(seed):
-        venv = sgfd_envs.make_domain_vec_env("SGFD/finger-spin-v0", split="test", n_envs=6, seed=seed, obs_type="state")
+        venv = sgfd_envs.make_domain_vec_env(
+            "SGFD/finger-spin-v0", split="test", n_envs=6, seed=seed, obs_type="state", test_domains=4
+        )
         try:
             observations = venv.reset()
             return observations, [env.unwrapped.domain for env in venv.envs], venv.envs[1].action_space.sample()
@@ -240,7 +248,7 @@ def test_make_domain_vec_env_seeds_sub_env_i_with_seed_plus_i():
 
 def test_make_domain_vec_env_works_with_subprocesses():
     venv = sgfd_envs.make_domain_vec_env(
-        "SGFD/cheetah-run-v0", split="test", n_envs=2, vec_env_cls=SubprocVecEnv, image_size=32
+        "SGFD/cheetah-run-v0", split="train", n_envs=2, vec_env_cls=SubprocVecEnv, image_size=32
     )
     try:
         observations = venv.reset()
@@ -266,7 +274,14 @@ def test_make_domain_vec_env_rejects_bad_arguments():
         ({"split": "val"}, r"split must be one of \('train', 'test'\)"),
         ({"domain": 4}, r"domain must be an int in 0..3 for split 'train', got 4"),
         ({"domain": -1}, r"domain must be an int in 0..3"),
-        ({"split": "test", "domain": 1.0}, r"domain must be an int in 0..3 for split 'test'"),
+        ({"split": "test", "domain": 1}, r"domain must be an int in 0..0 for split 'test', got 1"),
+        ({"split": "train", "domain": 1.0}, r"domain must be an int in 0..3 for split 'train'"),
+        ({"backgrounds": "video"}, r"backgrounds must be one of \('still', 'moving'\) for background ids"),
+        ({"compositing": "depth"}, r"compositing must be one of \('colour_key', 'matte'\)"),
+        ({"background_channels": "BGR"}, r"background_channels must be one of \('bgr', 'rgb'\)"),
+        ({"robots": "scaled"}, r"robots must be one of \('hipbmdp', 'dm_control'\) for background ids"),
+        ({"test_domains": 5}, r"test_domains must be None or an int in 1..4, got 5"),
+        ({"test_domains": 0}, r"test_domains must be None or an int in 1..4, got 0"),
         ({"obs_type": "rgb"}, r"obs_type must be one of \('pixels', 'state'\)"),
         ({"image_size": 0}, r"image_size must be a positive int"),
         ({"image_size": 32.5}, r"image_size must be a positive int, got 32.5"),
@@ -291,6 +306,8 @@ def test_background_ids_reject_bad_arguments(kwargs, message):
         ({"split_settings": {"train": ()}}, r"split_settings\['train'\] must be a non-empty sequence"),
         ({"split_settings": {"train": (1, 12)}}, r"setting must be an int in 1..10, got 12"),
         ({"split_settings": {"train": (1, 1)}}, r"repeats a setting"),
+        ({"robots": "dm_control"}, r"robots must be one of \('hipbmdp', 'scaled'\) for MT ids"),
+        ({"frame_lag": 2}, r"frame_lag must be True or False, got 2"),
     ],
 )
 def test_mt_ids_reject_bad_arguments(kwargs, message):
@@ -338,9 +355,9 @@ def test_observe_parameter_appends_the_scaled_parameter_and_only_on_states():
         values[setting] = float(obs[-1])
         env.close()
         plain.close()
-    # torso 0.48 m at setting 1, 0.6 m (dm_control) at 3, 1.02 m at 10, linear in between
+    # HiP-BMDP's left foot: half-length 0.08 m in file 1, 0.1 m (dm_control's) in file 3, 0.17 m in file 10
     assert values[1] == pytest.approx(-1.0) and values[10] == pytest.approx(1.0)
-    assert values[3] == pytest.approx(2 * (0.6 - 0.48) / (1.02 - 0.48) - 1, abs=1e-6)
+    assert values[3] == pytest.approx(2 * (0.1 - 0.08) / (0.17 - 0.08) - 1, abs=1e-6)
     with pytest.raises(ValueError, match="observe_parameter=True needs obs_type='state'"):
         gym.make("SGFD/MT-walker-walk-v0", observe_parameter=True)
     with pytest.raises(ValueError, match="observe_parameter must be True or False"):
@@ -351,7 +368,7 @@ def test_observe_parameter_gives_each_training_domain_its_own_value_in_a_vec_env
     venv = sgfd_envs.make_domain_vec_env("SGFD/MT-cheetah-run-v0", obs_type="state", observe_parameter=True)
     try:
         obs = venv.reset()
-        assert venv.get_attr("setting") == [1, 2, 4, 5]
+        assert venv.get_attr("setting") == [2, 3, 5, 6]
         assert np.all(np.diff(obs[:, -1]) > 0) and np.all(np.abs(obs[:, -1]) <= 1)
     finally:
         venv.close()

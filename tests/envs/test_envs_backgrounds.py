@@ -1,4 +1,6 @@
-"""sgfd_envs background ids: exact compositing, background sources, user folders and their errors."""
+"""sgfd_envs background ids: exact compositing, background sources, user folders and their errors, in the family the
+ids made before version 0.3.0 (moving backgrounds behind dm_control's robots by coverage: :data:`EARLIER`), one
+keyword each away from the paper's (tests/envs/test_paper_tasks.py)."""
 
 # First: importing sgfd_envs picks MuJoCo's headless OpenGL backend, which must precede dm_control.
 import sgfd_envs
@@ -23,6 +25,11 @@ from sgfd_envs.backgrounds import (
     fit_frame,
     make_background,
 )
+from sgfd_envs.families import EARLIER_FAMILY
+
+# The earlier family of the background ids; with a folder, its files decide the test domains.
+EARLIER = EARLIER_FAMILY["background"]
+EARLIER_WITH_FOLDER = {key: value for key, value in EARLIER.items() if key != "test_domains"}
 
 
 def plane_pixels(physics, segmentation):
@@ -45,7 +52,7 @@ def start_index(source, observation, background_mask):
 def test_compositing_puts_the_background_behind_the_robot_as_a_multisampled_render_would(env_id):
     domain, size = 1, 84
     source = make_background("train", domain, size, size)
-    with gym.make(env_id, domain=domain) as env:
+    with gym.make(env_id, domain=domain, **EARLIER) as env:
         observation, _ = env.reset(seed=0)
         rng = np.random.default_rng(0)
         for _ in range(10):
@@ -76,7 +83,7 @@ def test_background_starts_at_a_seeded_random_frame_and_advances_one_frame_per_s
     source = make_background("test", 2, 64, 64)
     starts = []
     for seed in (0, 0, 1):
-        with gym.make("SGFD/finger-spin-v0", split="test", domain=2, image_size=64) as env:
+        with gym.make("SGFD/finger-spin-v0", split="test", domain=2, image_size=64, **EARLIER) as env:
             observation, _ = env.reset(seed=seed)
             physics = env.unwrapped.physics
             background = interior(physics.render(64, 64, camera_id=0, segmentation=True)[..., 0] == -1)
@@ -188,7 +195,9 @@ def test_flat_video_folder_gives_four_training_sources_and_the_rest_for_testing(
     assert sgfd_envs.n_domains(env_id, "test", background_dir=video_folder) == 2
     expected = decoded_frames(video_folder / "clip5.mp4", 48)
     assert len(expected) == 12
-    with gym.make(env_id, split="test", domain=1, background_dir=video_folder, image_size=48) as env:
+    with gym.make(
+        env_id, split="test", domain=1, background_dir=video_folder, image_size=48, **EARLIER_WITH_FOLDER
+    ) as env:
         observation, _ = env.reset(seed=0)
         physics = env.unwrapped.physics
         background = interior(physics.render(48, 48, camera_id=0, segmentation=True)[..., 0] == -1)
@@ -209,7 +218,9 @@ def test_video_frame_budget_and_grayscale(video_folder):
     np.testing.assert_array_equal(budgeted.frame(4), decoded_frames(path, 32)[4])
     grey = VideoBackground(path, 32, 32, grayscale=True).frame(2)
     assert np.array_equal(grey[..., 0], grey[..., 2]) and grey.std() > 0
-    with gym.make("SGFD/cheetah-run-v0", background_dir=video_folder, grayscale=True, image_size=32) as env:
+    with gym.make(
+        "SGFD/cheetah-run-v0", background_dir=video_folder, grayscale=True, image_size=32, **EARLIER_WITH_FOLDER
+    ) as env:
         observation, _ = env.reset(seed=0)
         physics = env.unwrapped.physics
         background = interior(physics.render(32, 32, camera_id=0, segmentation=True)[..., 0] == -1)
@@ -234,7 +245,9 @@ def test_train_test_subfolders_and_images(tmp_path):
     assert sgfd_envs.n_domains("SGFD/finger-spin-v0", "train", background_dir=tmp_path) == 3
     assert sgfd_envs.n_domains("SGFD/finger-spin-v0", "test", background_dir=tmp_path) == 2
     expected = ImageBackground(tmp_path / "test" / "picture1.png", 40, 40).frame(0)
-    with gym.make("SGFD/finger-spin-v0", split="test", domain=1, background_dir=tmp_path, image_size=40) as env:
+    with gym.make(
+        "SGFD/finger-spin-v0", split="test", domain=1, background_dir=tmp_path, image_size=40, **EARLIER_WITH_FOLDER
+    ) as env:
         observations = [env.reset(seed=0)[0]] + [env.step(np.zeros(2, dtype=np.float32))[0] for _ in range(3)]
         physics = env.unwrapped.physics
         background = interior(physics.render(40, 40, camera_id=0, segmentation=True)[..., 0] == -1)
@@ -282,11 +295,11 @@ def test_half_split_folders_are_refused(tmp_path):
 def test_unreadable_media_are_refused_naming_the_file(video_folder):
     (video_folder / "clip0.avi").write_bytes(b"this is not a video" * 100)
     with pytest.raises(ValueError, match=r"background_dir: OpenCV could not read any frame of the video .*clip0\.avi"):
-        gym.make("SGFD/walker-walk-v0", background_dir=video_folder)
+        gym.make("SGFD/walker-walk-v0", background_dir=video_folder, **EARLIER_WITH_FOLDER)
     (video_folder / "clip1.mp4").unlink()
     (video_folder / "clip1.png").write_bytes(b"not a png")
     with pytest.raises(ValueError, match=r"background_dir: OpenCV could not read the image .*clip1\.png"):
-        gym.make("SGFD/walker-walk-v0", domain=1, background_dir=video_folder)
+        gym.make("SGFD/walker-walk-v0", domain=1, background_dir=video_folder, **EARLIER_WITH_FOLDER)
 
 
 def test_domain_range_follows_the_users_folder(video_folder):

@@ -1,5 +1,6 @@
-"""sgfd_envs MT ids: the ten morphology settings change what the camera sees and the physics, and
-every robot stays a sane, simulable robot whose task can still be done."""
+"""sgfd_envs MT ids, the package's own family of scaled robots (``robots="scaled"``): the ten morphology settings
+change what the camera sees and the physics, and every robot stays a sane, simulable robot whose task can still be
+done. HiP-BMDP's robots, the MT ids' default: tests/envs/test_paper_tasks.py."""
 
 # First: importing sgfd_envs picks MuJoCo's headless OpenGL backend, which must precede dm_control.
 import sgfd_envs  # noqa: F401
@@ -17,7 +18,7 @@ from dm_control.suite import walker as dm_walker
 
 from sgfd_envs import domains
 from sgfd_envs.domains import walker
-from sgfd_envs.morphology import DEFAULT_SPLIT_SETTINGS, SETTINGS
+from sgfd_envs.morphology import PACKAGE_SPLIT_SETTINGS, SETTINGS
 
 ROBOT_TASKS = [("walker", "walk"), ("walker", "run"), ("cheetah", "run"), ("finger", "spin"), ("finger", "turn")]
 # The body whose mass the varied length changes, per robot.
@@ -30,7 +31,7 @@ def scale(robot, setting):
 
 
 def test_settings_table():
-    assert DEFAULT_SPLIT_SETTINGS == {"train": (1, 2, 4, 5), "interpolation": (3,), "extrapolation": (10,)}
+    assert PACKAGE_SPLIT_SETTINGS == {"train": (1, 2, 4, 5), "interpolation": (3,), "extrapolation": (10,)}
     expected = {
         "walker": ("torso_length", [0.48, 0.54, 0.6, 0.66, 0.72, 0.78, 0.84, 0.9, 0.96, 1.02]),
         "cheetah": ("torso_length", [0.8, 0.9, 1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.6, 1.7]),
@@ -55,7 +56,7 @@ def test_settings_table():
     ],
 )
 def test_split_and_domain_pick_the_setting_and_label_the_env(split, domain, setting):
-    with gym.make("SGFD/MT-finger-turn-v0", split=split, domain=domain, obs_type="state") as env:
+    with gym.make("SGFD/MT-finger-turn-v0", split=split, domain=domain, obs_type="state", robots="scaled") as env:
         _, info = env.reset(seed=0)
         unwrapped = env.unwrapped
         assert (unwrapped.split, unwrapped.domain, unwrapped.setting) == (split, domain, setting)
@@ -119,7 +120,9 @@ def test_every_setting_changes_mass_inertia_kinematics_and_dynamics(robot):
 def test_every_setting_changes_what_the_camera_sees(robot):
     frames = []
     for setting in SETTINGS:
-        with gym.make(MT_ID[robot], setting=setting, obs_type="state", render_mode="rgb_array", image_size=48) as env:
+        with gym.make(
+            MT_ID[robot], setting=setting, obs_type="state", render_mode="rgb_array", image_size=48, robots="scaled"
+        ) as env:
             env.reset(seed=0)
             physics = env.unwrapped.physics
             with physics.reset_context():

@@ -100,9 +100,10 @@ def test_the_device_checks_smoke_run_fills_its_table(tmp_path):
     checks = [row.split("|")[1].strip() for row in rows]
     assert [check.split(" ")[0] for check in checks] == ["CUDA", "update_overhead", "env_throughput", "sgfd_sac", "2"]
     assert all(row.split("|")[2].strip() == "ok" for row in rows), rows
-    assert "updates/s: a 500k-update run in" in rows[3] and "SGFD's phase" in rows[3]
+    assert "env steps per update; collecting" in rows[3] and "a paper-scale run (200,800 updates" in rows[3]
+    assert "SGFD's phase" in rows[3]
     assert "env step" in rows[3] and "sample and transfer" in rows[3]
-    assert "updates/s in all" in rows[4]
+    assert "updates/s in all, " in rows[4] and " env steps per update" in rows[4]
 
 
 def test_the_learning_rows_become_rows_of_the_zoos_rate_table(tmp_path):
@@ -110,16 +111,23 @@ def test_the_learning_rows_become_rows_of_the_zoos_rate_table(tmp_path):
     table = tmp_path / "rates.csv"
     table.write_text((REPO / "sgfd_zoo" / "sweep" / "device_rates.csv").read_text().splitlines()[0] + "\n")
     rows = [
-        "| sgfd_sac on SGFD/walker-walk-v0, paper scale, cuda, update captured, SGFD's phase | ok | 95.2 updates/s |",
-        "| 8 concurrent sgfd_sac runs, 4 env processes and 1 torch thread each | ok | 310.5 updates/s in all (each |",
+        "| sgfd_sac on SGFD/walker-walk-v0, paper scale, cuda, update captured, SGFD's phase | ok | 95.2 updates/s, "
+        "5.01 env steps per update; collecting 1830 env steps/s: a paper-scale run |",
+        "| 8 concurrent sgfd_sac runs, 4 env processes and 1 torch thread each | ok | 310.5 updates/s in all, 4.98 env "
+        "steps per update (each |",
         "| update_overhead mlp | ok | SAC 1.0 ms |",
     ]
     check.append_rates(table, rows, "NVIDIA H200")
     import csv
 
+    from sgfd_zoo.sweep import cost
+
     written = list(csv.DictReader(table.open()))
-    assert [(r["runs_at_once"], r["updates_per_s"], r["update"]) for r in written] == [
-        ("1", "95.2", "captured"),
-        ("8", "310.5", "captured"),
+    figures = ("algo", "runs_at_once", "updates_per_s", "env_steps_per_update", "env_steps_per_s", "update")
+    assert [tuple(r[key] for key in figures) for r in written] == [
+        ("sgfd_sac", "1", "95.2", "5.01", "", "captured"),
+        ("envs", "1", "", "", "1830", ""),
+        ("sgfd_sac", "8", "310.5", "4.98", "", "captured"),
     ]
-    assert all(r["machine"] == "NVIDIA H200" and r["algo"] == "sgfd_sac" for r in written)
+    assert all(r["machine"] == "NVIDIA H200" for r in written)
+    assert len(cost.read_rates(table)) == 3  # rows the plan reads

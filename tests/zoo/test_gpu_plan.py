@@ -114,11 +114,20 @@ def plan_output(spec: str, *flags: str) -> str:
 
 
 def rate_table() -> dict[tuple[str, int], float]:
-    """The committed table's newest check, read here without the package: (algo, runs at once) -> updates/s in all."""
+    """The committed table's newest check, read here without the package: (algo, runs at once) -> updates/s in all,
+    and ("envs", runs at once) -> env steps/s in all."""
     with cost.RATES_FILE.open(newline="") as handle:
         rows = list(csv.DictReader(handle))
     newest = [row for row in rows if row["date"] == max(row["date"] for row in rows)]
-    return {(row["algo"], int(row["runs_at_once"])): float(row["updates_per_s"]) for row in newest}
+    figure = {True: "env_steps_per_s", False: "updates_per_s"}
+    return {(row["algo"], int(row["runs_at_once"])): float(row[figure[row["algo"] == "envs"]]) for row in newest}
+
+
+def run_hours(updates_per_s: float, env_steps_per_s: float, env_steps_per_update: float = 1.0) -> float:
+    """A paper-scale run's hours: 200,800 updates at the learner's own rate (the learning run's, its env steps taken
+    out) and 1e6 env steps."""
+    update_seconds = 1 / updates_per_s - env_steps_per_update / env_steps_per_s
+    return (200_800 * update_seconds + 1_000_000 / env_steps_per_s) / 3600
 
 
 @pytest.mark.slow
@@ -126,17 +135,27 @@ def rate_table() -> dict[tuple[str, int], float]:
 def test_the_plan_of_a_paper_table_counts_its_runs_and_costs_them_at_the_measured_rates(spec: str) -> None:
     out = plan_output(spec)
     assert out.startswith(f"study {spec}: 6 algos x 5 envs x 5 seeds = 150 runs at the zoo's paper settings")
-    assert "150 to train" in out and "updates per run: 499,000\n" in out  # 500k steps less 1000 before learning
+    # the authors' protocol: 1e6 transitions; 1000 updates at once after the first 1000, then one per 5 transitions
+    assert (
+        "150 to train" in out
+        and "updates per run: 200,800\n" in out
+        and "per run (physics and render): 1,000,000" in out
+    )
     assert "packing on that machine: 8 runs per GPU (--gpus-per-run 0.125); each 2 CPUs" in out
     rates = rate_table()
-    updates = 25 * 499_000
-    alone, packed = updates / rates["sgfd_sac", 1] / 3600, updates / (rates["sgfd_sac", 8] / 8) / 3600 / 8
-    sgfd = f"| SGFD (sgfd_sac) | 25 | {rates['sgfd_sac', 1]:.1f} | {alone:.1f} | {rates['sgfd_sac', 8] / 8:.1f} | "
-    assert sgfd + f"{packed:.1f} |" in out
+    env_rate = rates["envs", 1]
+    alone = 25 * run_hours(rates["sgfd_sac", 1], env_rate)
+    # 8 at once: the measured per-run update rate; the env-step rate slowed as much (the check measured it alone)
+    sharing = rates["sgfd_sac", 8] / 8 / rates["sgfd_sac", 1]
+    packed = 25 * run_hours(rates["sgfd_sac", 8] / 8, env_rate * sharing) / 8
+    sgfd = f"| SGFD (sgfd_sac) | 25 | {1 / (1 / rates['sgfd_sac', 1] - 1 / env_rate):.1f} | {env_rate:.0f} | "
+    assert sgfd + f"{alone:.1f} | " in out and f"~{packed:.1f} |" in out
     # AMBS measured alone only: its packed rate is its own scaled by SGFD's measured 8-at-once ratio, and marked
     ratio = rates["sgfd_sac", 8] / rates["sgfd_sac", 1]
-    ambs_packed = updates / (rates["ambs", 1] * ratio / 8) / 3600 / 8
-    assert f"| AMBS (ambs) | 25 | {rates['ambs', 1]:.1f} | " in out and f"~{ambs_packed:.1f} |" in out
+    ambs_packed = 25 * run_hours(rates["ambs", 1] * ratio / 8, env_rate * sharing) / 8
+    ambs_alone = 25 * run_hours(rates["ambs", 1], env_rate)
+    assert f"| AMBS (ambs) | 25 | {1 / (1 / rates['ambs', 1] - 1 / env_rate):.1f} | " in out
+    assert f" | {ambs_alone:.1f} | " in out and f"~{ambs_packed:.1f} |" in out
     unrated = [algo for algo in COLUMNS if (algo, 1) not in rates]
     for algo in unrated:
         assert f"({algo}) | 25 | no measured rate on pixels | – |" in out
@@ -147,7 +166,7 @@ def test_the_plan_of_a_paper_table_counts_its_runs_and_costs_them_at_the_measure
 @pytest.mark.slow
 def test_the_plans_wall_time_fills_the_gpus_it_is_given() -> None:
     one, eight = plan_output("paper-table1"), plan_output("paper-table1", "--gpus", "8", "--gpus-per-run", "0.25")
-    assert "on 1 such GPU (16 cores each), 8 runs on each: 103.1 h (4.3 days)" in one
+    assert "on 1 such GPU (16 cores each), 8 runs on each: 47.6 h (2.0 days)" in one
     assert "packing on that machine: 4 runs per GPU (--gpus-per-run 0.25); each 4 CPUs" in eight
     assert "on 8 such GPUs (16 cores each), 4 runs on each:" in eight
 
@@ -161,20 +180,25 @@ def test_wall_time_puts_each_run_on_the_first_free_place() -> None:
 def test_the_plan_uses_the_latest_check_only_and_names_what_it_did_not_measure(tmp_path: Path) -> None:
     rates = tmp_path / "rates.csv"
     rows = cost.RATES_FILE.read_text().splitlines()
-    later = "2027-01-10,NVIDIA H200,16,1,sgfd_sac,pixels,SGFD/walker-walk-v0,1,40.0,captured,a later check"
-    rates.write_text("\n".join([*rows, later]) + "\n")
+    later = "2027-01-10,NVIDIA H200,16,1,sgfd_sac,pixels,SGFD/walker-walk-v0,1,40.0,5,,captured,a later check"
+    envs = "2027-01-10,NVIDIA H200,16,1,envs,pixels,SGFD/walker-walk-v0,1,,,2000,,4 env processes"
+    rates.write_text("\n".join([*rows, later, envs]) + "\n")
     runs = cost.plan_runs(["sgfd_sac", "ambs"], ["SGFD/walker-walk-v0"], [0, 1], [], n_episodes=10)
     lines = cost.cost_lines(runs, gpus=1, gpus_per_run=None, rates_file=rates)
     assert "the device check of 2027-01-10" in lines[0] and "captured update" in lines[0]
     assert "(the check measured at most 1 run at once on a GPU: the plan packs 1 run per GPU)" in lines
-    assert f"| SGFD (sgfd_sac) | 2 | 40.0 | {2 * 499_000 / 40 / 3600:.1f} | 40.0 |" in "\n".join(lines)
-    assert "| AMBS (ambs) | 2 | no measured rate on pixels | – | – | – |" in lines
+    # 5 env steps inside each measured update: the learner alone makes 1 / (1/40 - 5/2000) = 44.4 updates/s
+    hours = 2 * run_hours(40.0, 2000.0, env_steps_per_update=5)
+    assert f"| SGFD (sgfd_sac) | 2 | 44.4 | 2000 | {hours:.1f} | 44.4 | 2000 | {hours:.1f} |" in lines
+    assert "| AMBS (ambs) | 2 | no measured rate on pixels | – | – | – | – | – |" in lines
+    assert "measured: envs, 1 at once: 2000 env steps/s in all (4 env processes)" in lines
 
 
 def test_a_plan_counts_the_specs_own_steps_and_evaluations() -> None:
     train = ["-n", "30000", "--eval-freq", "5000", "--eval-episodes", "8", "-params", "learning_starts:2000"]
     (run,) = cost.plan_runs(["sac"], ["SGFD/MT-walker-walk-v0"], [0], train, n_episodes=10)
-    assert (run.updates, run.observations) == (28_000, "pixels")
+    # one update per 5 of the 28k transitions after learning starts, and the burst of 1000
+    assert (run.updates, run.env_steps, run.observations) == (28_000 // 5 + 1000, 30_000, "pixels")
     assert (run.eval_episodes, run.final_episodes) == (6 * 8 * 3, 10 * 3)  # train, interpolation, extrapolation
     (run,) = cost.plan_runs(["sac"], ["SGFD/MT-walker-walk-v0"], [0], ["--quick"], n_episodes=10)
     assert run.observations == "state"
@@ -184,8 +208,10 @@ def test_a_plan_counts_the_specs_own_steps_and_evaluations() -> None:
     ("text", "message"),
     [
         ("date,machine\n", "expected the columns date, machine, cores"),
-        (",".join(cost.RATE_COLUMNS) + "\n2026-12-04,H200,16,1,sac,pixels,X,1,fast,eager,\n", "line 2: not a rate"),
-        (",".join(cost.RATE_COLUMNS) + "\n2026-12-04,H200,16,1,sac,pixels,X,0,9,eager,\n", "line 2: cores, gpus"),
+        (",".join(cost.RATE_COLUMNS) + "\n2026-12-04,H200,16,1,sac,pixels,X,1,fast,1,,eager,\n", "line 2: not a rate"),
+        (",".join(cost.RATE_COLUMNS) + "\n2026-12-04,H200,16,1,sac,pixels,X,0,9,1,,eager,\n", "line 2: cores, gpus"),
+        (",".join(cost.RATE_COLUMNS) + "\n2026-12-04,H200,16,1,sac,pixels,X,1,,1,,eager,\n", "updates_per_s > 0"),
+        (",".join(cost.RATE_COLUMNS) + "\n2026-12-04,H200,16,1,envs,pixels,X,1,,,0,,\n", "env_steps_per_s > 0"),
     ],
 )
 def test_a_bad_rate_table_is_named_in_one_line(tmp_path: Path, text: str, message: str) -> None:

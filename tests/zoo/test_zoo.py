@@ -112,10 +112,11 @@ def test_every_yaml_entry_builds_its_model(algo, quick, tmp_path):
         for key, value in SGFD_ALGOS[algo].overrides.items():  # SGFD's settings (model.sgfd)
             assert getattr(model.sgfd, key) == value and saved[key] == value
         if not quick:
-            # The paper's setting: pixels, 3 stacked frames, frame-deduplicating buffer of 500k transitions.
-            assert model.observation_space.shape == (9, 84, 84)
-            assert model.replay_buffer.frame_stack == 3
-            assert model.replay_buffer.buffer_size * model.n_envs == 500_000
+            # The paper's setting: pixels, 3 stacked frames, frame-deduplicating buffer of its 1e6 transitions; the
+            # authors' cadence: 1000 updates at once, then one per 5 transitions of the 4 training domains.
+            assert (model.observation_space.shape, model.replay_buffer.frame_stack) == ((9, 84, 84), 3)
+            assert model.replay_buffer.buffer_size * model.n_envs == 1_000_000 and model.gradient_steps == 4
+            assert (model.train_freq.frequency, type(manager.callbacks[0]).__name__) == (5, "UpdateBurst")
             # tau: the paper's 0.01; sgfd_sac_official.yml holds the authors' code's run settings (critic_tau 0.005).
             tau = 0.005 if SGFD_ALGOS[algo].hyperparams == "sgfd_sac_official" else 0.01
             assert (model.batch_size, model.lr_schedule(1), model.tau) == (128, 1e-3, tau)
