@@ -1,7 +1,9 @@
 """Values read from others' files are data: each is checked before it becomes a path, a table cell or a number
 (docs/trust.md). A split, an algorithm, an env or a seed read from a record must be one the record's place and its
 env allow; a name that will name a file keeps to a safe alphabet; a return is a finite number. Anything else is
-refused in one line naming the file and the value (:class:`~sgfd_zoo.runs.bounded.RefusedFile`).
+refused in one line naming the file and the value: a :class:`~sgfd_zoo.runs.bounded.RefusedFile` where the value would
+become a path or a name (a split, an algorithm, an env), an :class:`~sgfd_zoo.runs.bounded.UnreadableFile` where it
+is not what the zoo writes (a seed that is no whole number, a return that is not finite, a missing field).
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from sgfd_zoo.runs.bounded import RefusedFile
+from sgfd_zoo.runs.bounded import RefusedFile, UnreadableFile
 
 #: A name that may become part of a file's name: letters, digits, ``.``, ``_`` and ``-``, starting with a letter or
 #: a digit (so never ``..``, a hidden file or an option), at most 128 characters.
@@ -83,7 +85,7 @@ def whole_number(value: Any, what: str, source: Path | str, low: int = 0, high: 
         number = int(value.strip().split(".")[0])
     if number is None or number < low or (high is not None and number > high):
         bounds = f">= {low}" + ("" if high is None else f" and <= {high}")
-        raise RefusedFile(f"{source}: refused: {what} {value!r} is not a whole number {bounds}")
+        raise UnreadableFile(f"{source} is unreadable ({what} {value!r} is not a whole number {bounds})")
     return number
 
 
@@ -100,7 +102,7 @@ def finite_number(value: Any, what: str, source: Path | str, low: float | None =
             number = None
     if number is None or not math.isfinite(number) or (low is not None and number < low):
         bound = "" if low is None else f" >= {low:g}"
-        raise RefusedFile(f"{source}: refused: {what} {value!r} is not a finite number{bound}")
+        raise UnreadableFile(f"{source} is unreadable ({what} {value!r} is not a finite number{bound})")
     return number
 
 
@@ -110,7 +112,7 @@ def flag(value: Any, what: str, source: Path | str) -> bool:
         return value
     text = "" if value is None else str(value).strip().lower()
     if text not in ("true", "1", "false", "0", ""):
-        raise RefusedFile(f"{source}: refused: {what} {value!r} is not True or False")
+        raise UnreadableFile(f"{source} is unreadable ({what} {value!r} is not True or False)")
     return text in ("true", "1")
 
 
@@ -127,11 +129,12 @@ def result_row(row: Mapping[str, Any], source: Path | str, algo: str | None = No
     fields = ("algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes")
     missing = [key for key in fields if key not in row]
     if missing:
-        raise RefusedFile(f"{source}: refused: a row lacks {', '.join(missing)}")
+        raise UnreadableFile(f"{source} is unreadable (a row lacks {', '.join(missing)})")
     checked = {"algo": algo_key(row["algo"], source), "env": checked_env(row["env"], source)}
     for key, expected in (("algo", algo), ("env", env_id)):
         if expected is not None and checked[key] != expected:
-            raise RefusedFile(f"{source}: refused: a row names {key} {checked[key]!r}, its run is of {expected!r}")
+            named = f"a row names {key} {checked[key]!r}, its run's is {expected!r}"
+            raise UnreadableFile(f"{source} is unreadable ({named})")
     checked["split"] = checked_split(row["split"], checked["env"], source)
     checked["seed"] = whole_number(row["seed"], "seed", source, 0, MAX_SEED)
     checked["mean_reward"] = finite_number(row["mean_reward"], "mean_reward", source)

@@ -93,7 +93,7 @@ def config_value(config: Mapping[str, Any], key: str, source: Path, kind: str) -
     if kind == "fraction":
         number = finite_number(value, "the value", where, low=0.0)
         if number > 1:
-            raise RefusedFile(f"{where}: refused: {value!r} is not a fraction in [0, 1]")
+            raise UnreadableFile(f"{where} is unreadable ({value!r} is not a fraction in [0, 1])")
         return number
     if kind == "seed":
         return whole_number(value, "the value", where, 0, 2**32 - 1)
@@ -103,4 +103,4 @@ def config_value(config: Mapping[str, Any], key: str, source: Path, kind: str) -
         return value
     if kind == "name" and isinstance(value, str):
         return value
-    raise RefusedFile(f"{where}: refused: {value!r} is not {'a string' if kind == 'name' else 'a mapping'}")
+    raise UnreadableFile(f"{where} is unreadable ({value!r} is not {'a string' if kind == 'name' else 'a mapping'})")
