@@ -171,6 +171,8 @@ def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[
         record.write(run, rows, functools.partial(write_diagnostics, run))
         recorded[(run.algo, run.env_id, run.seed)] = record
     records = study_records(spec, out)
+    for record in records:  # every file of every record read (and refused, if it must be) before one is written
+        read_whole(record)
     results = [{**row, "run": str(record.path.relative_to(out))} for record in records for row in record.final_rows]
     written = list(evaluate.write_results(results, out))
     written += write_statistics(results, records, out, spec["reference"])[1]
@@ -178,6 +180,16 @@ def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[
     written += [write_text(out, out / "diagnostics.md", diagnostics_summary(records))]
     written += [write_text(out, out / "command.txt", redact(command) + "\n")]
     return [*written, write_text(out, out / "versions.txt", versions())]
+
+
+def read_whole(record: RunRecord) -> None:
+    """Read every file of ``record`` the tables and figures read, so that one refused stops the export before it
+    writes anything: its final evaluation, configuration, evaluations and logged figures."""
+    _ = record.final_rows, record.accuracy_threshold
+    for split in {row["split"] for row in record.final_rows}:
+        record.evaluations(split)
+    for key in DIAGNOSTICS:
+        record.log(key)
 
 
 def refuse_output_links(out: Path) -> None:

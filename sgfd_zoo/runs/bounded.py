@@ -132,10 +132,13 @@ def read_bytes(path: Path, limit: str, handle: io.FileIO | None = None) -> bytes
     size = os.fstat(handle.fileno()).st_size
     if size > LIMITS[limit]:
         raise over_limit(path, "size in bytes", size, limit)
-    data = handle.read(LIMITS[limit] + 1) or b""
-    if len(data) > LIMITS[limit]:
-        raise over_limit(path, "size in bytes", len(data), limit)
-    return data
+    chunks, read = [], 0
+    while chunk := handle.read(LIMITS[limit] + 1 - read):  # a read may return less than asked: until the end
+        chunks.append(chunk)
+        read += len(chunk)
+        if read > LIMITS[limit]:
+            raise over_limit(path, "size in bytes (at least)", read, limit)
+    return b"".join(chunks)
 
 
 def read_text(path: Path, limit: str = "MAX_TEXT_BYTES") -> str:

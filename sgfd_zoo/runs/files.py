@@ -27,9 +27,11 @@ from typing import Any
 
 from sgfd_zoo.arguments import ZooError
 from sgfd_zoo.runs.bounded import (
+    MAX_JSON_DEPTH,
     MAX_ZIP_INFLATED_BYTES,
     RefusedFile,
     UnreadableFile,
+    json_depth,
     load_json,
     read_bytes,
     zip_inflated_size,
@@ -114,8 +116,11 @@ def content_problem(path: Path) -> str | None:
                 handle.seek(-1, os.SEEK_END)
                 return None if handle.read(1) == b"." else f"{name} does not end like a pickle (truncated?)"
         if path.suffix == ".json":
-            json.loads(path.read_text())
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, RuntimeError) as error:
+            data = read_bytes(path, "MAX_JSON_BYTES")
+            if json_depth(data) > MAX_JSON_DEPTH:
+                return f"{name} nests deeper than MAX_JSON_DEPTH = {MAX_JSON_DEPTH} (docs/trust.md)"
+            json.loads(data)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, RuntimeError, ZooError) as error:
         return f"{name} is unreadable ({type(error).__name__}: {error})"
     return None
 
@@ -145,7 +150,10 @@ def held_folder(root: Path, folder: Path | None = None, create: bool = False) ->
     :param create: make the missing folders on the way
     """
     root = Path(root)
-    parts = () if folder is None else Path(folder).relative_to(root).parts
+    try:
+        parts = () if folder is None else Path(folder).relative_to(root).parts
+    except ValueError:
+        raise RefusedFile(f"{folder}: refused to write in it: it is not inside {root}") from None
     if any(part in ("..", ".") for part in parts):
         raise RefusedFile(f"{folder}: refused to write in it: '..' in its path leads out of {root}")
     if create:
