@@ -251,6 +251,9 @@ def test_background_images_over_their_pixel_limit_are_refused_before_they_are_de
         (folder / f"image{index}.png").write_bytes(png_header(16000))
     with pytest.raises(ValueError, match=r"image0.png' is 256000000 pixels, over the limit MAX_BACKGROUND_PIXELS"):
         sgfd_envs.make_domain_vec_env("SGFD/walker-walk-v0", background_dir=str(folder), image_size=16)
+    (folder / "image0.png").write_bytes(png_header(8192))  # over the zoo's limit, under Pillow's own
+    with pytest.raises(ValueError, match=r"is 8192 x 8192 = 67108864 pixels, over the limit MAX_BACKGROUND_PIXELS"):
+        sgfd_envs.make_domain_vec_env("SGFD/walker-walk-v0", background_dir=str(folder), image_size=16)
     # One within the limit is read on, to OpenCV (which finds a header and no pixels).
     (folder / "image0.png").write_bytes(png_header(4096))
     env_limits.check_image_file(folder / "image0.png", "background_dir")
