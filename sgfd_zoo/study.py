@@ -82,7 +82,7 @@ DIAGNOSTICS = (
 
 
 #: The type of each key of a spec, as :func:`read_spec` checks it before reading its values.
-SPEC_TYPES = {
+SPEC_TYPES: dict[str, tuple[type, str]] = {
     "name": (str, "a plain name"),
     "description": (str, "a line of text"),
     "algos": (list, "a list of algorithm keys"),
@@ -135,7 +135,7 @@ def read_spec(path: Path) -> dict[str, Any]:
 def _check_spec_types(spec: dict[str, Any], path: Path) -> None:
     """A ZooError naming the key when a spec's value is not of its type (:data:`SPEC_TYPES`), or a list's item is
     not a plain value of its kind (``algos: [[...]]``)."""
-    items = {"algos": str, "envs": str, "seeds": int, "train": (str, int, float)}
+    items: dict[str, type | tuple[type, ...]] = {"algos": str, "envs": str, "seeds": int, "train": (str, int, float)}
     for key, (kind, what) in SPEC_TYPES.items():
         value = spec.get(key)
         if value is None:

@@ -93,7 +93,7 @@ def over_limit(source: Path | str, what: str, value: int, limit: str) -> Refused
 
 
 @contextlib.contextmanager
-def opened(path: Path, dir_fd: int | None = None, follow: bool = True) -> Iterator[io.FileIO]:
+def opened(path: Path | str, dir_fd: int | None = None, follow: bool = True) -> Iterator[io.FileIO]:
     """``path`` opened for reading, when it is a regular file: a FIFO or a device (which could block or never end)
     is refused in one line, before anything is read.
 

@@ -130,7 +130,7 @@ def result_row(row: Mapping[str, Any], source: Path | str, algo: str | None = No
     missing = [key for key in fields if key not in row]
     if missing:
         raise UnreadableFile(f"{source} is unreadable (a row lacks {', '.join(missing)})")
-    checked = {"algo": algo_key(row["algo"], source), "env": checked_env(row["env"], source)}
+    checked: dict[str, Any] = {"algo": algo_key(row["algo"], source), "env": checked_env(row["env"], source)}
     for key, expected in (("algo", algo), ("env", env_id)):
         if expected is not None and checked[key] != expected:
             named = f"a row names {key} {checked[key]!r}, its run's is {expected!r}"

@@ -220,10 +220,12 @@ def write_below(root: Path, path: Path, write: Callable[[str], object]) -> Store
             written = tmp.stat().st_size if tmp.exists() else 0
             raise FileWriteError(path, error.strerror or str(error), error, written) from error
         finally:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(path.name, dir_fd=held)
+            for leftover in os.listdir(held):  # the file when it was not renamed, and whatever else a writer left
+                with contextlib.suppress(OSError):
+                    os.unlink(leftover, dir_fd=held)
             os.close(held)
-            os.rmdir(private, dir_fd=folder)
+            with contextlib.suppress(OSError):
+                os.rmdir(private, dir_fd=folder)
     return stored
 
 

@@ -341,11 +341,11 @@ class RunFolder(NamedRun):
             rows = [(row.get(STEPS_KEY), row.get(key)) for row in csv_rows(path)]
             resumed_at = _resume_step(path)
             points = {step: value for step, value in points.items() if step <= resumed_at}
-            for steps, value in rows:
-                if steps and value:
-                    points[whole_number(steps, STEPS_KEY, path)] = finite_number(value, key, path)
+            for logged_at, value in rows:
+                if logged_at and value:
+                    points[whole_number(logged_at, STEPS_KEY, path)] = finite_number(value, key, path)
         steps = np.array(sorted(points), dtype=np.int64)
-        return steps, np.array([points[step] for step in steps], dtype=np.float64)
+        return steps, np.array([points[step] for step in sorted(points)], dtype=np.float64)
 
     def load_model(self, device: str = "cpu") -> BaseAlgorithm:
         """The final model, without allocating its replay buffer."""
