@@ -312,7 +312,11 @@ def _code_problem(key: str, value: Any) -> str | None:
     """Why ``value`` of code hyperparameter ``key`` (``policy``, ``callback``, ...) would import or aim code where
     it should not: a dotted name at any depth (an argument of a trusted callable included) from outside
     :data:`TRUSTED_PACKAGES`, or a path given to the code it names."""
-    for text in strings_in(value):
+    try:
+        texts = strings_in(value)
+    except ValueError as error:
+        return f"{key}: {error}"
+    for text in texts:
         if DOTTED_NAME.fullmatch(text) and not text.startswith(TRUSTED_PACKAGES):
             return f"{key} names code to import ({text!r})"
         if key != "policy" and is_path(text):
