@@ -35,6 +35,7 @@ from sgfd_envs.background_splits import (
     check_background_split,
     check_test_domains,
 )
+from sgfd_envs.limits import check_background_pixels, check_image_file
 
 # Their home before they moved to the import-light module, kept.
 from sgfd_envs.background_splits import BACKGROUND_SPLITS as BACKGROUND_SPLITS  # isort: skip
@@ -308,6 +309,8 @@ class VideoBackground:
         )
         self._frames: list[np.ndarray] = []
         self._capture: cv2.VideoCapture | None = cv2.VideoCapture(self.path)
+        frame_size = (self._capture.get(cv2.CAP_PROP_FRAME_WIDTH), self._capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        check_background_pixels(self.path, int(frame_size[0]), int(frame_size[1]), argument)  # before decoding
         self._decode_until(0)
         if not self._frames:
             raise ValueError(f"{argument}: OpenCV could not read any frame of the video {self.path!r}")
@@ -381,6 +384,7 @@ class ImageBackground:
     def frame(self, index: int) -> np.ndarray:
         index %= len(self.paths)
         if index not in self._frames:
+            check_image_file(self.paths[index], self._argument)  # its pixels, from its header, before decoding
             image = cv2.imread(str(self.paths[index]), cv2.IMREAD_COLOR)
             if image is None:
                 raise ValueError(f"{self._argument}: OpenCV could not read the image {str(self.paths[index])!r}")

@@ -23,6 +23,7 @@ from dm_control.rl import control
 from gymnasium import spaces
 
 from sgfd_envs.backgrounds import BackgroundSource, colour_key, composite
+from sgfd_envs.limits import check_image_size_limit
 from sgfd_envs.rendering import CameraRenderer, check_render, configure_offscreen_buffer
 from sgfd_envs.state import HasState
 
@@ -31,13 +32,13 @@ COMPOSITINGS = ("colour_key", "matte")
 
 
 def check_image_size(image_size: int) -> int:
-    """Return ``image_size`` if it is a positive int, else raise.
+    """Return ``image_size`` if it is a positive int of at most :data:`~sgfd_envs.limits.MAX_IMAGE_SIZE`, else raise.
 
     :param image_size: height and width of images in pixels
     """
     if isinstance(image_size, bool) or not isinstance(image_size, (int, np.integer)) or image_size < 1:
         raise ValueError(f"image_size must be a positive int, got {image_size!r}")
-    return int(image_size)
+    return check_image_size_limit(int(image_size))
 
 
 @dataclass(frozen=True)

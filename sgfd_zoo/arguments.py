@@ -7,19 +7,42 @@ import ast
 import builtins
 import difflib
 import os
+import re
 import shlex
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+#: What a terminal acts on rather than shows: C0 and C1 controls (escape sequences, line breaks), DEL, and the
+#: invisible marks that reorder or hide text (bidirectional overrides and isolates, zero-width characters).
+CONTROL_CHARACTERS = re.compile("[\x00-\x1f\x7f-\x9f\u200b-\u200f\u2028-\u202e\u2060-\u2069\ufeff]")
+
+
+def printable(text: str, lines: bool = False) -> str:
+    """``text`` with every control character shown as its escape (``\\x1b``, ``\\n``, ``\\u202e``): a value read
+    from someone else's file cannot move the cursor, retitle the terminal or break a line where it is printed.
+
+    :param text: what is to be printed
+    :param lines: keep its line breaks (``\\n``): a table of many lines
+    """
+
+    def escape(match: re.Match) -> str:
+        return match.group() if lines and match.group() == "\n" else match.group().encode("unicode_escape").decode()
+
+    return CONTROL_CHARACTERS.sub(escape, text)
+
 
 class ZooError(Exception):
     """Something the user must change (an argument, a file, free space); the CLI prints it as one line, after
-    ``sgfd-zoo COMMAND: <label>:``, and exits with ``exit_code``."""
+    ``sgfd-zoo COMMAND: <label>:``, and exits with ``exit_code``. Its text is :func:`printable`: the file names and
+    values it quotes come from others' folders."""
 
     label = "error"
     exit_code = 2
+
+    def __str__(self) -> str:
+        return printable(super().__str__())
 
 
 class TrainingStopped(ZooError):

@@ -6,7 +6,6 @@ from __future__ import annotations
 import functools
 import sys
 import time
-import zipfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.logger import CSVOutputFormat
 from stable_baselines3.common.vec_env import VecEnv
 
+from sgfd_zoo.runs.bounded import load_npz
 from sgfd_zoo.runs.files import UnreadableFile, atomic_write
 
 
@@ -124,10 +124,10 @@ def _load_history(path: Path | None) -> dict[str, list]:
     history: dict[str, list] = {"timesteps": [], "results": [], "ep_lengths": []}
     if path is not None and path.exists():
         try:
-            with np.load(path) as data:
-                for key in history:
-                    history[key] = list(data[key])
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as error:
+            data = load_npz(path)  # within the limits of sgfd_zoo.runs.bounded
+            for key in history:
+                history[key] = list(data[key])
+        except (KeyError, UnreadableFile) as error:
             raise UnreadableFile(
                 f"{path} is unreadable ({type(error).__name__}: {error}): move it away to go on without the "
                 "evaluations it held"

@@ -13,7 +13,7 @@ import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from sgfd_zoo.runs.safe import RefusedFile, hyperparameter_problem, literal_expression
+from sgfd_zoo.runs.safe import EVALUATED_HYPERPARAMETERS, RefusedFile, literal_expression, spec_setting_problem
 
 SWITCHES = ("--quick", "--save-replay-buffer", "--no-progress")
 
@@ -107,6 +107,9 @@ def _problems(name: str, values: list[str]) -> list[str]:
 
 
 def _key_value_problem(flag: str, setting: str) -> str | None:
+    """What is wrong with ``flag KEY:VALUE`` in a spec: a value that is no literal (or, for a string rl-zoo3
+    evaluates itself, whose text is no literal), or one that names code or a path at any depth
+    (:func:`~sgfd_zoo.runs.safe.spec_setting_problem`); None when nothing is."""
     key, colon, text = setting.partition(":")
     if not colon or not key.isidentifier():
         return f"{flag} {setting!r} (expected KEY:VALUE)"
@@ -114,5 +117,9 @@ def _key_value_problem(flag: str, setting: str) -> str | None:
         value = literal_expression(text)
     except ValueError as error:
         return f"{flag} {key}: {error}"
-    problem = hyperparameter_problem(key, value) if flag in ("-params", "--hyperparams") else None
-    return None if problem is None else f"{flag} {problem}"
+    if flag in ("-params", "--hyperparams") and key in EVALUATED_HYPERPARAMETERS and isinstance(value, str):
+        try:
+            value = literal_expression(value)
+        except ValueError as error:
+            return f"{flag} {key}: {error} (rl-zoo3 evaluates it)"
+    return spec_setting_problem(flag, key, value)

@@ -41,10 +41,13 @@ import numpy as np
 import yaml
 
 from sgfd_zoo.algos import SGFD_ALGOS, algo_sort_key, column_name
-from sgfd_zoo.arguments import ZooError, check_at_least, checked_names, has_flag
+from sgfd_zoo.arguments import ZooError, check_at_least, checked_names, has_flag, printable
 from sgfd_zoo.report import evaluate
+from sgfd_zoo.report.markdown import markdown_text
 from sgfd_zoo.report.statistics import write_statistics
 from sgfd_zoo.runs import provenance
+from sgfd_zoo.runs.bounded import read_text
+from sgfd_zoo.runs.fields import result_row
 from sgfd_zoo.runs.folders import RunFolder, env_name, find_runs
 from sgfd_zoo.runs.records import RunRecord, find_records
 from sgfd_zoo.runs.safe import (
@@ -78,22 +81,37 @@ DIAGNOSTICS = (
 )
 
 
+#: The type of each key of a spec, as :func:`read_spec` checks it before reading its values.
+SPEC_TYPES: dict[str, tuple[type, str]] = {
+    "name": (str, "a plain name"),
+    "description": (str, "a line of text"),
+    "algos": (list, "a list of algorithm keys"),
+    "envs": (list, "a list of env ids"),
+    "seeds": (list, "a list of integers >= 0"),
+    "train": (list, "a list of flags and values"),
+    "n_episodes": (int, "an integer >= 1"),
+    "reference": (str, "one of its algos"),
+}
+
+
 def read_spec(path: Path) -> dict[str, Any]:
-    """The spec at ``path``, checked: known keys, algorithm keys and env ids, seeds, a list of train flags."""
+    """The spec at ``path``, checked: known keys, each of its type, algorithm keys and env ids, seeds, a list of
+    train flags; read within the limits of :mod:`sgfd_zoo.runs.bounded`."""
     if not path.is_file():
         raise ZooError(f"SPEC {path} is not a file (a study's spec.yml, e.g. studies/mt-state/spec.yml)")
     try:
-        spec = load_yaml(path.read_text(), f"SPEC {path}") or {}  # a tag naming Python code: refused
+        spec = load_yaml(read_text(path, "MAX_YAML_BYTES"), f"SPEC {path}") or {}  # a tag naming code: refused
     except yaml.YAMLError as error:
         raise ZooError(f"SPEC {path}: not a spec ({str(error).splitlines()[0]})") from None
     if not isinstance(spec, dict):
         raise ZooError(f"SPEC {path}: expected a mapping of {', '.join(sorted(SPEC_KEYS))}")
-    unknown = sorted(set(spec) - SPEC_KEYS)
+    unknown = sorted(str(key) for key in set(spec) - SPEC_KEYS)
     if unknown:
         raise ZooError(f"SPEC {path}: unknown key(s) {unknown}; a spec has {', '.join(sorted(SPEC_KEYS))}")
     for key in ("name", "algos", "envs", "seeds"):
         if not spec.get(key):
             raise ZooError(f"SPEC {path}: {key} is required")
+    _check_spec_types(spec, path)
     if not isinstance(spec["name"], str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", spec["name"]):
         raise RefusedFile(
             f"SPEC {path}: name {spec['name']!r} must be a plain name (letters, digits, '.', '_', '-'): it names the "
@@ -109,7 +127,24 @@ def read_spec(path: Path) -> dict[str, Any]:
     spec.setdefault("n_episodes", 10)
     check_at_least("n_episodes", spec["n_episodes"], 1)
     spec.setdefault("reference", spec["algos"][0])
+    if spec["reference"] not in spec["algos"]:
+        raise ZooError(f"SPEC {path}: reference {spec['reference']!r} is not one of its algos {spec['algos']}")
     return spec
+
+
+def _check_spec_types(spec: dict[str, Any], path: Path) -> None:
+    """A ZooError naming the key when a spec's value is not of its type (:data:`SPEC_TYPES`), or a list's item is
+    not a plain value of its kind (``algos: [[...]]``)."""
+    items: dict[str, type | tuple[type, ...]] = {"algos": str, "envs": str, "seeds": int, "train": (str, int, float)}
+    for key, (kind, what) in SPEC_TYPES.items():
+        value = spec.get(key)
+        if value is None:
+            continue
+        wrong = not isinstance(value, kind) or isinstance(value, bool)
+        if not wrong and key in items:
+            wrong = not all(isinstance(item, items[key]) and not isinstance(item, bool) for item in value)
+        if wrong:
+            raise ZooError(f"SPEC {path}: {key} must be {what}, got {value!r}"[:400])
 
 
 def sweep_arguments(spec: dict[str, Any], folder: Path) -> list[str]:
@@ -123,17 +158,21 @@ def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[
     """Record the finished runs of the log folder ``folder`` in ``out/runs`` (the spec's folder), then write the
     study's tables, statistics and figures from every record there: those of this log folder and those an
     earlier session left."""
+    results_file = folder / "results.csv"
     rows_by_run: dict[str, list[dict[str, Any]]] = {}
-    for row in evaluate.read_results(folder / "results.csv") if (folder / "results.csv").exists() else []:
-        rows_by_run.setdefault(row["run"], []).append(row)
+    for row in evaluate.read_results(results_file) if results_file.exists() else []:
+        rows_by_run.setdefault(str(row.get("run")), []).append(row)
     recorded = {(r.algo, r.env_id, r.seed): r for r in find_records(out / "runs", spec["algos"], spec["envs"])}
     for run in find_runs(folder, spec["algos"], spec["envs"]):
         if str(run.path) not in rows_by_run:
             continue  # not evaluated: recorded by the next export
+        rows = [result_row(row, results_file, run.algo, run.env_id) for row in rows_by_run[str(run.path)]]
         record = record_of(run, out / "runs", recorded)
-        record.write(run, rows_by_run[str(run.path)], functools.partial(write_diagnostics, run))
+        record.write(run, rows, functools.partial(write_diagnostics, run))
         recorded[(run.algo, run.env_id, run.seed)] = record
     records = study_records(spec, out)
+    for record in records:  # every file of every record read (and refused, if it must be) before one is written
+        read_whole(record)
     results = [{**row, "run": str(record.path.relative_to(out))} for record in records for row in record.final_rows]
     written = list(evaluate.write_results(results, out))
     written += write_statistics(results, records, out, spec["reference"])[1]
@@ -141,6 +180,16 @@ def export(spec: dict[str, Any], folder: Path, out: Path, command: str) -> list[
     written += [write_text(out, out / "diagnostics.md", diagnostics_summary(records))]
     written += [write_text(out, out / "command.txt", redact(command) + "\n")]
     return [*written, write_text(out, out / "versions.txt", versions())]
+
+
+def read_whole(record: RunRecord) -> None:
+    """Read every file of ``record`` the tables and figures read, so that one refused stops the export before it
+    writes anything: its final evaluation, configuration, evaluations and logged figures."""
+    _ = record.final_rows, record.accuracy_threshold
+    for split in {row["split"] for row in record.final_rows}:
+        record.evaluations(split)
+    for key in DIAGNOSTICS:
+        record.log(key)
 
 
 def refuse_output_links(out: Path) -> None:
@@ -277,12 +326,11 @@ def diagnostics_summary(runs: Sequence[RunFolder | RunRecord]) -> str:
                     if len(logged):
                         values.append(float(logged.mean()))
             finals = {split: [_final_return(run, split) for run in group] for split in ("train", "extrapolation")}
-            top = np.concatenate([run.log(TOP_SALIENCY)[1] for run in group]).astype(int)
+            top = np.concatenate([_features(run) for run in group])
             cells = [_mean_std(ready, "{:.0f}"), _mean_std(ess), _mean_std(low), _mean_std(high), _modal_share(top)]
             cells += [_mean_std([v for v in finals[split] if v is not None], "{:.1f}") for split in finals]
-            lines.append(
-                f"| {env_id.split('/')[-1]} | {column_name(algo)} | {len(group)} | " + " | ".join(cells) + " |"
-            )
+            names = f"| {markdown_text(env_id.split('/')[-1])} | {markdown_text(column_name(algo))} | {len(group)} | "
+            lines.append(names + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -291,12 +339,22 @@ def _final_return(run: RunFolder | RunRecord, split: str) -> float | None:
     return None if evaluations is None or not len(evaluations["results"]) else float(evaluations["results"][-1].mean())
 
 
+def _features(run: RunFolder | RunRecord) -> np.ndarray:
+    """The logged indices of the most salient feature, whole (the logger averages them over its interval: a mean
+    of 14 and 15 is 14.5, counted as 14); refused, naming the run, when one is negative or beyond 2**53."""
+    values = run.log(TOP_SALIENCY)[1]
+    if not ((values >= 0) & (values < 2**53)).all():
+        raise RefusedFile(f"{run.path}: refused: its {TOP_SALIENCY} values are not all feature indices (>= 0)")
+    return values.astype(np.int64)
+
+
 def _modal_share(values: np.ndarray) -> str:
-    """The most frequent value and its share of ``values``, e.g. ``24 (93%)``; ``–`` when empty."""
+    """The most frequent value and its share of ``values``, e.g. ``24 (93%)`` (the smallest of those tied); ``–``
+    when empty. Counted by value, so that a large index costs nothing."""
     if not len(values):
         return "–"
-    counts = np.bincount(values)
-    return f"{counts.argmax()} ({counts.max() / len(values):.0%})"
+    found, counts = np.unique(values, return_counts=True)
+    return f"{found[counts.argmax()]} ({counts.max() / len(values):.0%})"
 
 
 def _mean_std(values: list[float], form: str = "{:.2f}") -> str:
@@ -402,7 +460,7 @@ def main(argv: list[str]) -> int:
     written = export(spec, folder, out, command)
     print(f"study {spec['name']}: wrote {len(written)} files to {out}")
     if (out / "aggregate.md").exists():
-        print((out / "aggregate.md").read_text())
+        print(printable(read_text(out / "aggregate.md"), lines=True))
     finished = len(study_records(spec, out))
     total = len(spec["algos"]) * len(spec["envs"]) * len(spec["seeds"])
     if finished < total:

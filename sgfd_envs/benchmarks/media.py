@@ -32,6 +32,7 @@ from sgfd_envs.backgrounds import (
     VideoBackground,
 )
 from sgfd_envs.benchmarks.scene import suite_texture_attributes
+from sgfd_envs.limits import check_data_file_bytes
 
 COLOUR_KEYS = ("grid_rgb1", "grid_rgb2", "self_rgb", "skybox_rgb")
 COLOUR_SET_SIZE = 100
@@ -81,12 +82,14 @@ class _ArrayUnpickler(pickle.Unpickler):
 
 def _unpickle_torch_file(path: Path) -> object:
     """The object of a file written by ``torch.save`` holding no tensors (legacy or zip format)."""
+    check_data_file_bytes(path, path.stat().st_size)
     raw = path.read_bytes()
     if zipfile.is_zipfile(io.BytesIO(raw)):
         with zipfile.ZipFile(io.BytesIO(raw)) as archive:
             name = next((n for n in archive.namelist() if n.endswith("data.pkl")), None)
             if name is None:
                 raise ValueError(f"data_dir: {str(path)!r} is a zip file without data.pkl, not a torch.save file")
+            check_data_file_bytes(path, archive.getinfo(name).file_size, f"{name}'s inflated size")
             return _ArrayUnpickler(io.BytesIO(archive.read(name))).load()
     handle = io.BytesIO(raw)
     # The legacy format: a magic number, the protocol version and system info, then the object.

@@ -20,7 +20,8 @@ from pytablewriter import MarkdownTableWriter
 import sgfd_envs
 from sgfd_envs.registry import BENCHMARK_KINDS, benchmark_of
 from sgfd_zoo.algos import algo_sort_key, column_name
-from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id, train_command
+from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id, printable, train_command
+from sgfd_zoo.report.markdown import markdown_text
 from sgfd_zoo.report.statistics import (
     MAX_RETURN,
     STAND_IN_MARK,
@@ -33,9 +34,10 @@ from sgfd_zoo.report.statistics import (
     write_csv,
     write_statistics,
 )
+from sgfd_zoo.runs.fields import result_row
 from sgfd_zoo.runs.files import UnreadableFile, read_json
 from sgfd_zoo.runs.folders import RunFolder, find_runs
-from sgfd_zoo.runs.safe import refuse_links, refuse_links_inside, write_text
+from sgfd_zoo.runs.safe import RefusedFile, refuse_links, refuse_links_inside, write_text
 
 RESULT_FIELDS = ["algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes", "stand_in", "run"]
 
@@ -60,7 +62,8 @@ def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[st
     }
     kept = _kept_evaluation(run.final_evaluation)
     if kept.get("key") == key and isinstance(kept.get("rows"), list):
-        return [{**row, "run": str(run.path)} for row in kept["rows"]]
+        rows = [result_row(row, run.final_evaluation, run.algo, run.env_id) for row in kept["rows"]]
+        return [{**row, "stand_in": bool(row.get("stand_in")), "run": str(run.path)} for row in rows]
     model = run.load_model()
     rows = []
     for label, mode_kwargs in modes:
@@ -105,6 +108,8 @@ def render_tables(results: list[dict[str, Any]]) -> str:
     stand_in_splits = {row["split"] for row in results if on_stand_in(row)}
     for row in results:
         by_cell[(row["split"], row["env"], row["algo"])].append(float(row["mean_reward"]))
+        if not np.isfinite(by_cell[(row["split"], row["env"], row["algo"])][-1]):
+            raise RefusedFile(f"{row.get('run', 'a run')}: refused: its {row['split']} return is not finite")
     splits = sorted({key[0] for key in by_cell}, key=split_sort_key)
     out = io.StringIO()
     for split in splits:
@@ -113,7 +118,7 @@ def render_tables(results: list[dict[str, Any]]) -> str:
         totals = dict.fromkeys(algos, 0.0)
         matrix = []
         for env in envs:
-            cells = [_task_name(env)]
+            cells = [markdown_text(_task_name(env), pipes=False)]
             for algo in algos:
                 values = by_cell.get((split, env, algo))
                 if values is None:
@@ -126,8 +131,8 @@ def render_tables(results: list[dict[str, Any]]) -> str:
         counts = [len(values) for (s, _, _), values in by_cell.items() if s == split]
         mark = STAND_IN_MARK if split in stand_in_splits else ""
         writer = MarkdownTableWriter(
-            table_name=f"{split}{mark} ({over_seeds(counts)})",
-            headers=["Task", *(column_name(algo) for algo in algos)],
+            table_name=f"{markdown_text(split)}{mark} ({over_seeds(counts)})",
+            headers=["Task", *(markdown_text(column_name(algo), pipes=False) for algo in algos)],
             value_matrix=matrix,
         )
         writer.margin = 1
@@ -172,12 +177,12 @@ def render_benchmark_tables(results: list[dict[str, Any]], reps: int = 2000, see
             by_cell[(row["algo"], row["env"], row["split"])].append(float(row["mean_reward"]))
         modes = sorted({row["split"] for row in rows}, key=split_sort_key)
         stand_in_modes = {row["split"] for row in rows if on_stand_in(row)}
-        headers = [mode + (STAND_IN_MARK if mode in stand_in_modes else "") for mode in modes]
+        headers = [markdown_text(mode, False) + (STAND_IN_MARK if mode in stand_in_modes else "") for mode in modes]
         for algo in sorted({row["algo"] for row in rows}, key=algo_sort_key):
             envs = sorted({env for a, env, _ in by_cell if a == algo})
             matrix = []
             for env in envs:
-                cells = [env.split("/", 1)[1].rsplit("-v", 1)[0]]
+                cells = [markdown_text(env.split("/", 1)[1].rsplit("-v", 1)[0], pipes=False)]
                 for mode in modes:
                     values = by_cell.get((algo, env, mode))
                     cells.append("–" if values is None else f"{np.mean(values):.1f} ± {np.std(values):.1f}")
@@ -192,7 +197,7 @@ def render_benchmark_tables(results: list[dict[str, Any]], reps: int = 2000, see
             counts = [len(values) for (a, _, _), values in by_cell.items() if a == algo]
             writer = MarkdownTableWriter(
                 table_name=(
-                    f"{name}: {column_name(algo)} ({over_seeds(counts)}; "
+                    f"{name}: {markdown_text(column_name(algo))} ({over_seeds(counts)}; "
                     f"IQM of return / {MAX_RETURN:g} over runs x tasks, 95% CI)"
                 ),
                 headers=["Task", *headers],
@@ -220,6 +225,8 @@ def write_results(results: list[dict[str, Any]], folder: Path, reps: int = 2000,
 
 
 def read_results(path: Path) -> list[dict[str, Any]]:
+    """The rows of a ``results.csv`` as written (strings), within the limits of :mod:`sgfd_zoo.runs.bounded`; each
+    is checked where it is used (:func:`~sgfd_zoo.runs.fields.result_row`)."""
     return read_csv(path)
 
 
@@ -228,13 +235,38 @@ def read_results(path: Path) -> list[dict[str, Any]]:
 
 def continue_command(run: RunFolder) -> str:
     """The ``sgfd-zoo train`` command that continues ``run`` from its checkpoint (or starts it again when it has
-    none), from the flags the run recorded; for a run that recorded none, what to add to the command that
-    trained it."""
+    none), rebuilt from checked fields (:func:`continue_flags`), never copied from the run's ``command.txt``; for a
+    run that recorded no flags, or flags that do not pass the checks, what to add to the command that trained it."""
     resume = run.checkpoint is not None
     argv = run.train_argv()
-    if argv is None:
+    flags = None if argv is None else continue_flags(argv, run)
+    if flags is None:
         return f"the command that trained it, with --run-id {run.run_id}{' --resume' if resume else ''}"
-    return train_command(argv, run.run_id, resume)
+    return train_command(flags, run.run_id, resume)
+
+
+#: The flags of a recorded command that name the run itself, and how each is rebuilt from the run's checked place.
+_RUN_FLAGS = ("--algo", "--env", "--seed", "-f", "--log-folder", "--folder", "--run-id")
+
+
+def continue_flags(argv: list[str], run: RunFolder) -> list[str] | None:
+    """The flags that continue ``run``, from its recorded ``argv``: its algorithm, env, seed and log folder as its
+    folder and ``args.yml`` give them (checked), then the recorded per-run flags if each passes the checks of a
+    spec's flags (:func:`~sgfd_zoo.spec_flags.check_train_flags`: data only, no path, no code); None when one does
+    not, or when the recorded algorithm, env or seed is not the run's."""
+    from sgfd_zoo.arguments import flag_value, without_flags
+    from sgfd_zoo.spec_flags import check_train_flags
+
+    recorded = {"--algo": run.algo, "--env": run.env_id, "--seed": None if run.seed is None else str(run.seed)}
+    if any(flag_value(argv, flag) not in (None, value) for flag, value in recorded.items()):
+        return None
+    rest = without_flags(argv, switches=["--resume"], options=_RUN_FLAGS)
+    try:
+        check_train_flags(rest, run.command_file)
+    except RefusedFile:
+        return None
+    named = [item for flag, value in recorded.items() if value is not None for item in (flag, value)]
+    return [*named, "-f", str(run.root), *rest]
 
 
 def unfinished_report(runs: list[RunFolder]) -> list[str]:
@@ -321,7 +353,7 @@ def main(argv: list[str]) -> int:
     for run in find_runs(args.folder, args.algo, args.env, finished=False):
         (runs if run.finished else unfinished).append(run)
     for line in unfinished_report(unfinished):
-        print(line)
+        print(printable(line))
     if not runs:
         raise ZooError(f"no finished run under {args.folder} (expected <algo>/<EnvName>_<id>/<EnvName>.zip)")
     refuse_output_links(args.folder, runs)
@@ -334,15 +366,16 @@ def main(argv: list[str]) -> int:
     th.set_num_threads(args.num_threads)
     results = []
     for run in runs:
-        print(f"Evaluating {run.algo} on {run.env_id} (seed {run.seed}): {run.path}")
+        print(printable(f"Evaluating {run.algo} on {run.env_id} (seed {run.seed}): {run.path}"))
         results += evaluate_run(run, args.n_episodes, args.seed)
     csv_path, md_path = write_results(results, args.folder, args.bootstrap_reps, args.seed)
     markdown, files = write_statistics(results, runs, args.folder, args.reference, args.bootstrap_reps, args.seed)
     print()
-    print(md_path.read_text())
-    print(markdown)
+    print(printable(md_path.read_text(), lines=True))
+    print(printable(markdown, lines=True))
     written = [csv_path, md_path, *files]
     new = ", ".join(str(path) for path in written if path not in before)
     replaced = ", ".join(str(path) for path in written if path in before)
-    print("; ".join(filter(None, [new and f"Wrote {new}", replaced and f"{'r' if new else 'R'}eplaced {replaced}"])))
+    said = [new and f"Wrote {new}", replaced and f"{'r' if new else 'R'}eplaced {replaced}"]
+    print(printable("; ".join(filter(None, said))))
     return 0

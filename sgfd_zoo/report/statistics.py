@@ -20,6 +20,9 @@ import numpy as np
 
 from sgfd_envs.benchmarks import dcs, dmcgb2
 from sgfd_zoo.algos import algo_sort_key, column_name
+from sgfd_zoo.report.markdown import markdown_text
+from sgfd_zoo.runs import bounded
+from sgfd_zoo.runs.fields import finite_number, safe_name
 from sgfd_zoo.runs.folders import RunFolder
 from sgfd_zoo.runs.records import RunRecord
 from sgfd_zoo.runs.safe import make_folder, save_figure, write_file, write_text
@@ -45,7 +48,8 @@ def split_sort_key(split: str) -> tuple[int, str]:
 
 
 def score_rows(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per run and split, ``algo,env,seed,split,return``: the mean evaluation return of the run.
+    """One row per run and split, ``algo,env,seed,split,return``: the mean evaluation return of the run; a return
+    that is not finite is refused in one line naming the run (no table averages a NaN away or shows one).
 
     :param results: rows of ``sgfd-zoo evaluate`` (algo, env, split, seed, mean_reward, ...)
     """
@@ -55,7 +59,7 @@ def score_rows(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
             "env": r["env"],
             "seed": int(r["seed"]),
             "split": r["split"],
-            "return": float(r["mean_reward"]),
+            "return": finite_number(r["mean_reward"], f"{r['split']} mean_reward", r.get("run", "a result")),
         }
         for r in results
     ]
@@ -212,16 +216,16 @@ def render_aggregate(
         runs = {algo: matrix.shape[0] for algo, matrix in matrices.items()}
         mark = STAND_IN_MARK if split in stand_in_splits else ""
         out.write(
-            f"# {split}{mark}: normalised score (return / {MAX_RETURN:g}), {len(tasks)} task(s), "
+            f"# {markdown_text(split)}{mark}: normalised score (return / {MAX_RETURN:g}), {len(tasks)} task(s), "
             f"95% stratified-bootstrap CIs\n\n"
         )
-        improvement = f"P({column_name(reference)} > algo)" if reference else "P(improvement)"
+        improvement = f"P({markdown_text(column_name(reference))} > algo)" if reference else "P(improvement)"
         out.write(
             f"| algo | runs per task | IQM | mean | optimality gap | {improvement} |\n|---|---|---|---|---|---|\n"
         )
         for algo in sorted(cells, key=algo_sort_key):
             row_cells = [cells[algo].get(metric, "–") for metric in (*METRICS, IMPROVEMENT)]
-            out.write(f"| {column_name(algo)} | {runs.get(algo, 0)} | {' | '.join(row_cells)} |\n")
+            out.write(f"| {markdown_text(column_name(algo))} | {runs.get(algo, 0)} | {' | '.join(row_cells)} |\n")
         out.write("\n")
     if set(stand_in_splits) & {row["split"] for row in rows}:
         out.write(STAND_IN_NOTE)
@@ -276,9 +280,11 @@ def write_figures(
     from matplotlib import pyplot as plt
     from rliable import plot_utils
 
-    make_folder(out.parent, out)  # no link: the figures stay in the folder the command was given
+    root = out.parent  # the folder the command was given: no link below it is followed
+    make_folder(root, out)
     written = []
     for split in sorted({row["split"] for row in rows}, key=split_sort_key):
+        safe_name(split, "split", out)  # it names the figures' files
         split_rows = [row for row in rows if row["split"] == split]
         algos = sorted({row["algo"] for row in split_rows if row["metric"] in METRICS}, key=algo_sort_key)
         points = {column_name(a): [_value(split_rows, a, m, "value") for m in METRICS] for a in algos}
@@ -298,7 +304,7 @@ def write_figures(
             xlabel_y_coordinate=label_y,
         )  # fmt: skip
         fig.suptitle(f"{split}: 95% stratified-bootstrap CIs", y=1.16)
-        written.append(_save(fig, out / f"aggregate_{split}.png", plt))
+        written.append(_save(fig, root, out / f"aggregate_{split}.png", plt))
 
         improvement = [row for row in split_rows if row["metric"].startswith(IMPROVEMENT)]
         if improvement:
@@ -310,7 +316,7 @@ def write_figures(
             }
             ax = plot_utils.plot_probability_of_improvement(pairs, cis, figsize=(4.5, 0.5 + 0.5 * len(pairs)))
             ax.set_title(f"{split}: P({reference} > other)")
-            written.append(_save(ax.figure, out / f"probability_of_improvement_{split}.png", plt))
+            written.append(_save(ax.figure, root, out / f"probability_of_improvement_{split}.png", plt))
 
         curves = efficiency_curves(runs, split)
         if curves is not None and len(curves[0]) > 1:
@@ -329,7 +335,7 @@ def write_figures(
             )  # fmt: skip
             ax.legend(fontsize=8)
             ax.set_title(f"{split}: sample efficiency (IQM, 95% CIs)", fontsize=10)
-            written.append(_save(fig, out / f"sample_efficiency_{split}.png", plt))
+            written.append(_save(fig, root, out / f"sample_efficiency_{split}.png", plt))
     return written
 
 
@@ -337,9 +343,10 @@ def _value(rows: Sequence[dict[str, Any]], algo: str, metric: str, key: str) -> 
     return next(float(row[key]) for row in rows if row["algo"] == algo and row["metric"] == metric)
 
 
-def _save(fig: Any, path: Path, plt: Any) -> Path:
-    """``fig`` saved to ``<folder>/plots/<name>`` (written whole; no link followed below ``<folder>``)."""
-    save_figure(fig, path.parent.parent, path, dpi=100, bbox_inches="tight")
+def _save(fig: Any, root: Path, path: Path, plt: Any) -> Path:
+    """``fig`` saved to ``path`` (written whole; no link followed below ``root``, the folder the command was
+    given)."""
+    save_figure(fig, root, path, dpi=100, bbox_inches="tight")
     plt.close(fig)
     return path
 
@@ -358,8 +365,8 @@ def write_csv(rows: Sequence[dict[str, Any]], path: Path, fields: Sequence[str])
 
 
 def read_csv(path: Path) -> list[dict[str, Any]]:
-    with path.open(newline="") as handle:
-        return list(csv.DictReader(handle))
+    """Every row of ``path``, within the limits of :mod:`sgfd_zoo.runs.bounded`."""
+    return list(bounded.read_csv(path))
 
 
 def write_statistics(

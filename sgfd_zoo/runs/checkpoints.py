@@ -15,6 +15,7 @@ Files only: what a checkpoint holds and when it is taken is :mod:`sgfd_zoo.runs.
 from __future__ import annotations
 
 import re
+import shutil
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -126,8 +127,13 @@ def remove_checkpoint_files(folder: Path, keep: Iterable[Checkpoint]) -> list[st
     subfolders = [path for path in Path(folder).iterdir() if path.is_dir() and not path.is_symlink()]
     leftovers = [path for where in [Path(folder), *subfolders] for path in where.glob(f"{TMP_PREFIX}*")]
     for path in [*Path(folder).glob("checkpoint_*_steps.*"), *leftovers]:
+        if path.name in kept or path.name == CHECKPOINT_INDEX:
+            continue
         # a link is removed itself (unlink never follows one), not what it points to
-        if (path.is_file() or path.is_symlink()) and path.name not in kept and path.name != CHECKPOINT_INDEX:
+        if path.is_file() or path.is_symlink():
             path.unlink(missing_ok=True)
+            removed.append(path.name)
+        elif path.is_dir() and path.name.startswith(TMP_PREFIX):  # a write's private folder (files.write_below)
+            shutil.rmtree(path)  # descriptor-based where the system allows: it follows no link inside
             removed.append(path.name)
     return sorted(removed)

@@ -1,13 +1,18 @@
 """Files written whole and read back with their problems named: the zoo's one way to write a file.
 
-Every file the zoo writes goes through :func:`atomic_write`: a temporary file beside it whose name is unique to the
-writing process (``.tmp-<host>-<pid>-<random>-<name>``), fsync'd, checked, renamed over the old one, and the
-folder fsync'd; a crash leaves the old file or the new one, never a mix, and two processes never share a
-temporary file. No heavy import: reporting reads files through this module too.
+Every file the zoo writes goes through :func:`atomic_write` (or :func:`write_below`, from the folder a command was
+given): written in a private folder beside it whose name is unique to the writing process
+(``.tmp-<host>-<pid>-<random>-<name>``), fsync'd, checked, renamed over the old one, and the folder fsync'd; a
+crash leaves the old file or the new one, never a mix, and two processes never share a temporary file. The folders
+are held by descriptors, reached one name at a time without following a link (``O_NOFOLLOW``), and the writer
+is handed its file through the held folder (``/proc/self/fd/<folder>/...``): a folder swapped for a link while it
+writes cannot take even the temporary file elsewhere. No heavy import: reporting reads files through this module.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 import json
 import os
@@ -15,18 +20,26 @@ import secrets
 import shutil
 import socket
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from sgfd_zoo.arguments import ZooError
+from sgfd_zoo.runs.bounded import (
+    MAX_JSON_DEPTH,
+    MAX_ZIP_INFLATED_BYTES,
+    RefusedFile,
+    UnreadableFile,
+    json_depth,
+    load_json,
+    read_bytes,
+    zip_inflated_size,
+)
 
 TMP_PREFIX = ".tmp-"
-
-
-class UnreadableFile(ZooError):
-    """A run's file that exists but cannot be read back (truncated, zeroed, not what the zoo writes)."""
+#: Where Linux shows a process's open descriptors as paths: a writer reaches its file through the held folder.
+PROC_FD = Path("/proc/self/fd")
 
 
 class FileWriteError(ZooError):
@@ -93,6 +106,9 @@ def content_problem(path: Path) -> str | None:
             return f"{name} is empty"
         if path.suffix in (".zip", ".npz"):
             with zipfile.ZipFile(path) as archive:
+                inflated = zip_inflated_size(archive)
+                if inflated > MAX_ZIP_INFLATED_BYTES:
+                    return f"{name} declares {inflated} bytes inflated, over MAX_ZIP_INFLATED_BYTES (docs/trust.md)"
                 bad = archive.testzip()
             return None if bad is None else f"{name}: member {bad} does not match its CRC"
         if path.suffix == ".pkl":
@@ -100,8 +116,11 @@ def content_problem(path: Path) -> str | None:
                 handle.seek(-1, os.SEEK_END)
                 return None if handle.read(1) == b"." else f"{name} does not end like a pickle (truncated?)"
         if path.suffix == ".json":
-            json.loads(path.read_text())
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, RuntimeError) as error:
+            data = read_bytes(path, "MAX_JSON_BYTES")
+            if json_depth(data) > MAX_JSON_DEPTH:
+                return f"{name} nests deeper than MAX_JSON_DEPTH = {MAX_JSON_DEPTH} (docs/trust.md)"
+            json.loads(data)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, RuntimeError, ZooError) as error:
         return f"{name} is unreadable ({type(error).__name__}: {error})"
     return None
 
@@ -113,34 +132,100 @@ def temporary_path(path: Path) -> Path:
     return path.with_name(f"{TMP_PREFIX}{host}-{os.getpid()}-{secrets.token_hex(4)}-{path.name}")
 
 
+def _refused_link(path: Path, root: Path) -> RefusedFile:
+    return RefusedFile(
+        f"{path}: refused to write in it: a symbolic link, or no longer a folder, inside {root}; sgfd-zoo never "
+        "follows links there"
+    )
+
+
+@contextlib.contextmanager
+def held_folder(root: Path, folder: Path | None = None, create: bool = False) -> Iterator[int]:
+    """A descriptor of ``folder`` (``root`` itself by default), reached from ``root`` one name at a time, none
+    followed if it is a link (``O_NOFOLLOW``); a :class:`~sgfd_zoo.runs.bounded.RefusedFile` when one is a link or
+    leads out of ``root``. ``root`` itself may be a link: the user gave it.
+
+    :param root: the folder the command was given
+    :param folder: a folder below it
+    :param create: make the missing folders on the way
+    """
+    root = Path(root)
+    try:
+        parts = () if folder is None else Path(folder).relative_to(root).parts
+    except ValueError:
+        raise RefusedFile(f"{folder}: refused to write in it: it is not inside {root}") from None
+    if any(part in ("..", ".") for part in parts):
+        raise RefusedFile(f"{folder}: refused to write in it: '..' in its path leads out of {root}")
+    if create:
+        root.mkdir(parents=True, exist_ok=True)
+    descriptor = os.open(root, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        for depth, part in enumerate(parts):
+            if create:
+                with contextlib.suppress(FileExistsError):
+                    os.mkdir(part, dir_fd=descriptor)
+            try:
+                child = os.open(part, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC, dir_fd=descriptor)
+            except OSError as error:
+                if error.errno in (errno.ELOOP, errno.ENOTDIR):
+                    raise _refused_link(root.joinpath(*parts[: depth + 1]), root) from None
+                raise
+            os.close(descriptor)
+            descriptor = child
+        yield descriptor
+    finally:
+        os.close(descriptor)
+
+
+def _through(folder: int, name: str, path: Path) -> Path:
+    """The path by which a writer reaches ``name`` inside the held ``folder`` (``path`` where the system shows no
+    descriptors as paths)."""
+    return PROC_FD / str(folder) / name if PROC_FD.is_dir() else path
+
+
 def atomic_write(path: Path, write: Callable[[str], object]) -> StoredFile:
-    """Write ``path`` whole or not at all: ``write(tmp)`` writes a temporary file beside it
-    (:func:`temporary_path`), which is fsync'd, checked (:func:`content_problem`), renamed over ``path``, and the
-    folder fsync'd. On any failure the temporary file is removed; an OSError or a failed check raises
+    """Write ``path`` whole or not at all (:func:`write_below` from its own folder)."""
+    path = Path(path)
+    return write_below(path.parent, path, write)
+
+
+def write_below(root: Path, path: Path, write: Callable[[str], object]) -> StoredFile:
+    """Write ``path`` (below the folder ``root``) whole or not at all: ``write(tmp)`` writes a temporary file in a
+    private folder beside it (:func:`temporary_path`), which is fsync'd, checked (:func:`content_problem`), renamed
+    over ``path``, and the folder fsync'd. Each folder from ``root`` down is held by its descriptor, none a link
+    (:func:`held_folder`). On any failure the temporary file is removed; an OSError or a failed check raises
     :class:`FileWriteError`.
 
+    :param root: the folder the command was given (it may be a link)
     :param path: the file to write
     :param write: writes the file at the path it is given (keeping its suffix: SB3 appends ".zip" otherwise)
     :return: the file's name, size and sha256
     """
     path = Path(path)
-    tmp = temporary_path(path)
-    try:
-        write(str(tmp))
-        fsync(tmp)
-        problem = content_problem(tmp)
-        if problem is not None:
-            raise FileWriteError(path, f"written incomplete: {problem}")
-        stored = StoredFile(path.name, tmp.stat().st_size, sha256_of(tmp))
-        os.replace(tmp, path)
-        fsync(path.parent)
-    except OSError as error:
-        written = tmp.stat().st_size if tmp.exists() else 0
-        tmp.unlink(missing_ok=True)
-        raise FileWriteError(path, error.strerror or str(error), error, written) from error
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    with held_folder(root, path.parent) as folder:
+        private = temporary_path(path).name
+        os.mkdir(private, 0o700, dir_fd=folder)  # only this user adds names there: none can be swapped for a link
+        held = os.open(private, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC, dir_fd=folder)
+        tmp = _through(held, path.name, path.parent / private / path.name)
+        try:
+            write(str(tmp))
+            fsync(tmp)
+            problem = content_problem(tmp)
+            if problem is not None:
+                raise FileWriteError(path, f"written incomplete: {problem}")
+            stored = StoredFile(path.name, tmp.stat().st_size, sha256_of(tmp))
+            os.replace(path.name, path.name, src_dir_fd=held, dst_dir_fd=folder)
+            os.fsync(folder)
+        except OSError as error:
+            written = tmp.stat().st_size if tmp.exists() else 0
+            raise FileWriteError(path, error.strerror or str(error), error, written) from error
+        finally:
+            for leftover in os.listdir(held):  # the file when it was not renamed, and whatever else a writer left
+                with contextlib.suppress(OSError):
+                    os.unlink(leftover, dir_fd=held)
+            os.close(held)
+            with contextlib.suppress(OSError):
+                os.rmdir(private, dir_fd=folder)
     return stored
 
 
@@ -158,13 +243,15 @@ def write_json(path: Path, value: Any) -> StoredFile:
 
 
 def read_json(path: Path) -> Any:
-    """The parsed file, None when it does not exist, an :class:`UnreadableFile` when it does not parse."""
+    """The parsed file, None when it does not exist, an :class:`UnreadableFile` when it does not parse; refused
+    over the limits of :func:`~sgfd_zoo.runs.bounded.load_json` (size, depth, numbers that are not finite)."""
     if not path.exists():
         return None
     try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError) as error:
+        data = read_bytes(path, "MAX_JSON_BYTES")
+    except OSError as error:
         raise UnreadableFile(f"{path} is unreadable ({type(error).__name__}: {error})") from None
+    return load_json(data, path)
 
 
 def write_failure(what: str, folder: Path, error: FileWriteError, expected_size: int | None, kept: str) -> str:

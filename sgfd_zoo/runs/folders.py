@@ -25,12 +25,9 @@ torch (``load_model`` imports the algorithm's class).
 
 from __future__ import annotations
 
-import csv
 import functools
-import json
 import shlex
 import time
-import zipfile
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,11 +41,13 @@ from sgfd_envs.families import env_kwargs_as_trained, family_kwargs
 from sgfd_zoo.algos import SGFD_ALGOS
 from sgfd_zoo.arguments import ZooError, check_env_id
 from sgfd_zoo.runs import provenance
+from sgfd_zoo.runs.bounded import csv_rows, read_text
 from sgfd_zoo.runs.checkpoints import Checkpoint, read_index, scan_checkpoints
+from sgfd_zoo.runs.fields import ALGO_KEY, finite_number, whole_number
 from sgfd_zoo.runs.files import StoredFile, UnreadableFile, read_json, write_json
+from sgfd_zoo.runs.readers import config_value, final_model_steps, read_evaluations, read_yaml
 from sgfd_zoo.runs.safe import (
     RefusedFile,
-    load_yaml,
     plain_name,
     redact_argv,
     redact_values,
@@ -125,11 +124,16 @@ class NamedRun:
     @property
     def accuracy_threshold(self) -> float:
         """The accuracy SGFD's classifier trained to in this run: its config's, else its reading's default."""
-        threshold = self.config.get("accuracy_threshold")
+        source = self.config_dir / "config.yml"
+        threshold = config_value(self.config, "accuracy_threshold", source, "fraction")
         if threshold is None:
             from sb3_sgfd.sgfd.settings import SGFDSettings  # here: reading run folders needs no torch
 
-            threshold = SGFDSettings.of_reading(self.config.get("reading", "paper")).accuracy_threshold
+            reading = config_value(self.config, "reading", source, "name") or "paper"
+            try:
+                threshold = SGFDSettings.of_reading(reading).accuracy_threshold
+            except ValueError as error:
+                raise RefusedFile(f"{source} reading: refused: {error}") from None
         return float(threshold)
 
     def evaluations(self, split: str) -> dict[str, np.ndarray] | None:
@@ -195,8 +199,8 @@ class RunFolder(NamedRun):
         in a run of an earlier version from :attr:`legacy_command_file`; None for a run that recorded neither
         (version 0.1.0's runs) or whose files are unreadable."""
         try:
-            command = shlex.split(self.command_file.read_text())
-        except (OSError, ValueError):
+            command = shlex.split(read_text(self.command_file))
+        except (OSError, ValueError, UnreadableFile):
             command = []
         if command[:2] == ["sgfd-zoo", "train"]:
             return command[2:]
@@ -241,7 +245,7 @@ class RunFolder(NamedRun):
             write_text(self.root, self.command_file, shlex.join(["sgfd-zoo", "train", *redact_argv(argv)]) + "\n")
             self.legacy_command_file.unlink(missing_ok=True)
         block = f"=== from step {step}, {time.strftime('%Y-%m-%d %H:%M:%S')}\n{provenance.versions()}"
-        earlier = self.versions_file.read_text() if self.versions_file.exists() else ""
+        earlier = read_text(self.versions_file) if self.versions_file.exists() else ""
         write_text(self.root, self.versions_file, earlier + block)
 
     @functools.cached_property
@@ -251,18 +255,20 @@ class RunFolder(NamedRun):
 
     @property
     def seed(self) -> int | None:
-        seed = self.args.get("seed")
-        return None if seed is None else int(seed)
+        return config_value(self.args, "seed", self.config_dir / "args.yml", "seed")
 
     @property
     def env_kwargs(self) -> dict[str, Any]:
         """The env kwargs it trained with, its envs' family among them (``env_family``; sgfd_envs.families)."""
-        recorded = dict(self.args.get("env_kwargs") or self.config.get("env_kwargs") or {})
+        given = config_value(self.args, "env_kwargs", self.config_dir / "args.yml", "mapping")
+        recorded = dict(
+            given or config_value(self.config, "env_kwargs", self.config_dir / "config.yml", "mapping") or {}
+        )
         return env_kwargs_as_trained(self.env_id, recorded, self.args.get("env_family"))
 
     @property
     def frame_stack(self) -> int | None:
-        return self.config.get("frame_stack")
+        return config_value(self.config, "frame_stack", self.config_dir / "config.yml", "frames")
 
     @property
     def problems(self) -> list[str]:
@@ -324,7 +330,7 @@ class RunFolder(NamedRun):
             except (KeyError, TypeError, ValueError):
                 steps = None
         if steps is None:
-            steps = _final_model_steps(self.model_path)
+            steps = final_model_steps(self.model_path)
         if steps is None:
             return False
         return all(checkpoint.num_timesteps <= steps for checkpoint in self.checkpoints())
@@ -339,18 +345,14 @@ class RunFolder(NamedRun):
         """
         points: dict[int, float] = {}
         for path in sorted(self.path.glob("progress*.csv"), key=_resume_step):
-            with path.open(newline="") as handle:
-                reader = csv.DictReader(handle)
-                if reader.fieldnames is None or key not in reader.fieldnames or STEPS_KEY not in reader.fieldnames:
-                    continue
-                rows = [(row[STEPS_KEY], row[key]) for row in reader]
+            rows = [(row.get(STEPS_KEY), row.get(key)) for row in csv_rows(path)]
             resumed_at = _resume_step(path)
             points = {step: value for step, value in points.items() if step <= resumed_at}
-            for steps, value in rows:
-                if steps and value:
-                    points[int(float(steps))] = float(value)
+            for logged_at, value in rows:
+                if logged_at and value:
+                    points[whole_number(logged_at, STEPS_KEY, path)] = finite_number(value, key, path)
         steps = np.array(sorted(points), dtype=np.int64)
-        return steps, np.array([points[step] for step in steps], dtype=np.float64)
+        return steps, np.array([points[step] for step in sorted(points)], dtype=np.float64)
 
     def load_model(self, device: str = "cpu") -> BaseAlgorithm:
         """The final model, without allocating its replay buffer."""
@@ -371,17 +373,6 @@ class RunFolder(NamedRun):
             raise ZooError(f"{self.model_path}: the final model does not load ({what})") from None
 
 
-def _final_model_steps(path: Path) -> int | None:
-    """The step count of a whole final model that reached the total it was trained for, else None."""
-    try:
-        with zipfile.ZipFile(path) as archive:
-            data = json.loads(archive.read("data"))
-        steps, total = int(data["num_timesteps"]), int(data["_total_timesteps"])
-    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile, RuntimeError):
-        return None
-    return steps if 0 < total <= steps else None
-
-
 def find_runs(
     folder: Path, algos: Iterable[str] | None = None, env_ids: Iterable[str] | None = None, finished: bool = True
 ) -> list[RunFolder]:
@@ -392,7 +383,8 @@ def find_runs(
     :param env_ids: only these env ids
     :param finished: only finished runs (else every run folder)
     """
-    runs = [run for path in run_paths(folder, algos, env_ids) if (run := RunFolder(path)).finished or not finished]
+    runs = [RunFolder(path) for path in run_paths(folder, algos, env_ids)]
+    runs = [run for run in runs if not finished or run.finished]
     return sorted(runs, key=lambda run: (run.algo, run.env_id, run.run_id))
 
 
@@ -406,9 +398,11 @@ def run_paths(folder: Path, algos: Iterable[str] | None, env_ids: Iterable[str] 
         if algos and algo_dir.name not in algos:
             continue
         refuse_links(folder, algo_dir, "read runs in")
-        for path in algo_dir.iterdir():
-            env_id = _run_env_id(path) if path.is_dir() else None
-            if env_id is not None and (not env_ids or env_id in env_ids):
+        found = [path for path in algo_dir.iterdir() if path.is_dir() and _run_env_id(path) is not None]
+        if found and not ALGO_KEY.fullmatch(algo_dir.name):  # its name becomes table cells, records' paths
+            raise RefusedFile(f"{algo_dir}: refused: its runs' algorithm {algo_dir.name!r} is not an algorithm's key")
+        for path in found:
+            if not env_ids or _run_env_id(path) in env_ids:
                 refuse_links(folder, path, "read")
                 paths.append(path)
     return paths
@@ -444,50 +438,6 @@ def select_run(folder: Path, env_id: str, algo: str, run_id: int | None = None) 
     if run_id not in runs:
         raise ZooError(f"--exp-id {run_id}: no finished run {run_id} of {algo} on {env_id}; choose from {sorted(runs)}")
     return runs[run_id]
-
-
-def read_evaluations(path: Path) -> dict[str, np.ndarray] | None:
-    """``timesteps`` (n evaluations), ``results`` (n x episodes) and what else an ``evaluations_<split>.npz``
-    holds, or None without one; an :class:`UnreadableFile` when it is not such a file (arrays of Python objects
-    included: they would be pickles, which are never loaded)."""
-    if not path.exists():
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {key: data[key] for key in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
-        raise UnreadableFile(f"{path} is unreadable ({type(error).__name__}: {error})") from None
-    steps, results = arrays.get("timesteps"), arrays.get("results")
-    if (
-        steps is None
-        or results is None
-        or steps.dtype.kind not in "iuf"
-        or results.dtype.kind not in "iuf"
-        or steps.ndim != 1
-        or results.shape[:1] != steps.shape
-        or results.ndim != 2
-    ):
-        held = ", ".join(f"{key} {array.dtype} {array.shape}" for key, array in arrays.items()) or "nothing"
-        raise UnreadableFile(
-            f"{path} is not an evaluations file (expected numbers: timesteps (n) and results (n x episodes); it "
-            f"holds {held})"
-        )
-    return arrays
-
-
-def read_yaml(path: Path) -> tuple[dict[str, Any], str | None]:
-    """The mapping in a yaml file ({} when absent) and, when it cannot be read, why; a
-    :class:`~sgfd_zoo.runs.safe.RefusedFile` when it holds a tag that names Python code (it is data only)."""
-    if not path.exists():
-        return {}, None
-    try:
-        loaded = load_yaml(path.read_text(), path)
-        # rl-zoo3 writes an OrderedDict, or a list of (key, value) pairs
-        return (dict(loaded) if loaded else {}), None
-    except RefusedFile:
-        raise
-    except (OSError, ValueError, TypeError, yaml.YAMLError) as error:
-        return {}, f"{path} is unreadable ({type(error).__name__}: {str(error).splitlines()[0]})"
 
 
 def _resume_step(path: Path) -> int:

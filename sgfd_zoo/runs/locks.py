@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from sgfd_zoo.arguments import ZooError
+from sgfd_zoo.runs.bounded import load_json, read_bytes
 from sgfd_zoo.runs.files import fsync, temporary_path
 
 LOCK_FILE = "writer.lock"
@@ -135,11 +136,11 @@ def _read_lock_file(path: Path) -> LockHolder | None:
     """The holder a lock file at ``path`` names (see :func:`read_holder`); None when there is no such file."""
     try:
         heartbeat = path.stat().st_mtime
-        text = path.read_text()
+        data = read_bytes(path, "MAX_JSON_BYTES")
     except FileNotFoundError:
         return None
     try:
-        fields = json.loads(text)
+        fields = load_json(data, path)  # bounded: depth, finite numbers (sgfd_zoo.runs.bounded)
         return LockHolder(
             str(fields["token"]),
             int(fields["pid"]),
@@ -149,7 +150,7 @@ def _read_lock_file(path: Path) -> LockHolder | None:
             heartbeat,
             str(fields.get("command", "")),
         )
-    except (ValueError, KeyError, TypeError):
+    except (ValueError, KeyError, TypeError, ZooError):  # not JSON, or refused: a lock whose writer is unknown
         return LockHolder("", -1, "an unknown host", None, heartbeat, heartbeat, "its lock file is unreadable")
 
 

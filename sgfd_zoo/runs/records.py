@@ -28,7 +28,8 @@ import numpy as np
 import yaml
 
 import sgfd_envs
-from sgfd_zoo.runs.files import UnreadableFile
+from sgfd_zoo.runs.bounded import RefusedFile, csv_rows, read_text
+from sgfd_zoo.runs.fields import finite_number, result_row, safe_name, whole_number
 from sgfd_zoo.runs.folders import NamedRun, RunFolder, read_evaluations, run_paths
 from sgfd_zoo.runs.safe import copy_file, load_yaml, make_folder, redact, refuse_links_inside, write_file, write_text
 
@@ -69,7 +70,7 @@ class RunRecord(NamedRun):
         their run. Reads the absolute paths that records of earlier versions hold too."""
         if not self.source_file.exists():
             return None
-        source = self.source_file.read_text().strip()
+        source = read_text(self.source_file).strip()
         match = _SOURCE.fullmatch(source)
         if match is None:
             return Path(source) == run.path.resolve()
@@ -78,23 +79,20 @@ class RunRecord(NamedRun):
     @functools.cached_property
     def final_rows(self) -> list[dict[str, Any]]:
         """The final model's evaluation, one row per split ([] when the record has none), as ``sgfd-zoo
-        evaluate`` gives it, ``run`` being the record's folder."""
+        evaluate`` gives it, ``run`` being the record's folder: each field checked (:func:`~sgfd_zoo.runs.fields.
+        result_row`: this record's algorithm and env, one of its splits, finite returns), read within the limits
+        of :mod:`~sgfd_zoo.runs.bounded`."""
         if not self.final_evaluation.exists():
             return []
-        with self.final_evaluation.open(newline="") as handle:
-            rows = list(csv.DictReader(handle))
-        types = {"seed": int, "mean_reward": float, "std_reward": float, "n_episodes": int}
-        try:
-            return [
-                {
-                    **{key: types.get(key, str)(row[key]) for key in FINAL_EVALUATION_FIELDS},
-                    **{key: row[key] for key in OPTIONAL_EVALUATION_FIELDS if row.get(key)},
-                    "run": str(self.path),
-                }
-                for row in rows
-            ]
-        except (KeyError, TypeError, ValueError) as error:
-            raise UnreadableFile(f"{self.final_evaluation} is unreadable ({type(error).__name__}: {error})") from None
+        rows = [
+            {**result_row(row, self.final_evaluation, self.algo, self.env_id), "run": str(self.path)}
+            for row in csv_rows(self.final_evaluation)
+        ]
+        seeds = {row["seed"] for row in rows}
+        if len(seeds) > 1:
+            where = self.final_evaluation
+            raise RefusedFile(f"{where}: refused: it holds the rows of seeds {sorted(seeds)}, not one run's")
+        return rows
 
     @property
     def seed(self) -> int | None:
@@ -106,14 +104,14 @@ class RunRecord(NamedRun):
         return {row["split"] for row in self.final_rows} >= set(sgfd_envs.splits(self.env_id))
 
     def log(self, key: str) -> tuple[np.ndarray, np.ndarray]:
-        """(timesteps, values) of one logged figure kept in ``diagnostics.csv`` (empty when it was not kept)."""
+        """(timesteps, values) of one logged figure kept in ``diagnostics.csv`` (empty when it was not kept): whole
+        steps and finite values, or a refusal naming the file."""
         steps, values = [], []
         if self.diagnostics.exists():
-            with self.diagnostics.open(newline="") as handle:
-                for row in csv.DictReader(handle):
-                    if row.get(key):
-                        steps.append(int(row["timesteps"]))
-                        values.append(float(row[key]))
+            for row in csv_rows(self.diagnostics):
+                if row.get(key):
+                    steps.append(whole_number(row.get("timesteps"), "timesteps", self.diagnostics))
+                    values.append(finite_number(row[key], key, self.diagnostics))
         return np.array(steps, dtype=np.int64), np.array(values, dtype=np.float64)
 
     def write(self, run: RunFolder, final_rows: list[dict[str, Any]], diagnostics: Callable[[Path], object]) -> None:
@@ -131,12 +129,13 @@ class RunRecord(NamedRun):
         self.final_evaluation.unlink(missing_ok=True)
         write_text(root, self.source_file, f"{run.algo}/{run.path.name} in log folder {_folder_digest(run.root)}\n")
         for npz in sorted(run.path.glob("evaluations_*.npz")):
+            safe_name(npz.name, "file", run.path)
             read_evaluations(npz)  # data only: an UnreadableFile otherwise
-            copy_file(run.root, npz, root, self.path / npz.name)
-        for name in ("config.yml", "args.yml", run.versions_file.name):
+            copy_file(run.root, npz, root, self.path / npz.name, limit="MAX_NPZ_FILE_BYTES")
+        for name, limit in (("config.yml", "MAX_YAML_BYTES"), ("args.yml", "MAX_YAML_BYTES"), ("versions.txt", None)):
             if (run.config_dir / name).exists():
                 change = functools.partial(_shared_args, source=run.config_dir / name) if name == "args.yml" else redact
-                copy_file(run.root, run.config_dir / name, root, self.path / name, change)
+                copy_file(run.root, run.config_dir / name, root, self.path / name, change, limit or "MAX_TEXT_BYTES")
         write_file(root, self.diagnostics, lambda tmp: diagnostics(Path(tmp)))
 
         def write_rows(tmp: str) -> None:

@@ -8,8 +8,10 @@ reads from them never runs code, and what it writes, copies or deletes stays ins
 - An expression that rl-zoo3 would ``eval`` (``-params policy_kwargs:dict(net_arch=[256, 256])``) is parsed by
   :func:`literal_expression`: literals, and ``dict(...)`` of literals; nothing else.
 - A write goes through :func:`write_file`: refused when the file, or a folder between the given root and it, is a
-  symbolic link (``os.replace`` of :func:`~sgfd_zoo.runs.files.atomic_write` replaces a link at the file itself,
-  but a linked folder above it would take the write elsewhere); copies and deletions alike.
+  symbolic link; the folders are then held by descriptors that follow no link
+  (:func:`~sgfd_zoo.runs.files.write_below`), so a folder swapped for a link while the zoo writes cannot take the
+  write elsewhere; copies and deletions alike.
+- Every read is bounded (:mod:`sgfd_zoo.runs.bounded`): YAML by its size, depth and aliases before it is built.
 - Credentials in URLs (``postgresql://user:password@host/db``) are removed before a command line or an argument
   is written (:func:`redact`).
 """
@@ -26,15 +28,8 @@ from typing import Any
 
 import yaml
 
-from sgfd_zoo.arguments import ZooError
-from sgfd_zoo.runs.files import StoredFile, atomic_write
-
-
-class RefusedFile(ZooError):
-    """A file or a value read from disk that the zoo does not act on: one that would run code, a name that leads
-    out of its folder, a symbolic link where the zoo writes, copies or deletes. Never read "as if absent": the
-    command stops, in one line naming the file and what was refused."""
-
+from sgfd_zoo.runs.bounded import LIMITS, RefusedFile, check_yaml, opened, read_bytes
+from sgfd_zoo.runs.files import StoredFile, held_folder, write_below
 
 # -- YAML ------------------------------------------------------------------------------------------------
 
@@ -82,11 +77,13 @@ DataLoader.add_constructor(None, _refuse)  # any tag without a constructor of it
 
 def load_yaml(text: str, source: Path | str) -> Any:
     """The data of YAML ``text`` (read from ``source``); a :class:`RefusedFile` when it holds a tag that names a
-    Python object, a ``yaml.YAMLError`` when it does not parse.
+    Python object or is over a limit (:func:`~sgfd_zoo.runs.bounded.check_yaml`: size, depth, aliases), a
+    ``yaml.YAMLError`` when it does not parse.
 
     :param text: the file's text
     :param source: where it was read, for the message
     """
+    check_yaml(text, source)
     try:
         return yaml.load(text, Loader=DataLoader)
     except _CodeTag as tag:
@@ -182,9 +179,9 @@ def refuse_links_inside(folder: Path, root: Path, action: str = "write") -> None
 
 
 def write_file(root: Path, path: Path, write: Callable[[str], object]) -> StoredFile:
-    """:func:`~sgfd_zoo.runs.files.atomic_write` of ``path``, after :func:`refuse_links` from ``root``."""
+    """:func:`~sgfd_zoo.runs.files.write_below` of ``path``, after :func:`refuse_links` from ``root``."""
     refuse_links(root, path)
-    return atomic_write(path, write)
+    return write_below(root, path, write)
 
 
 def write_text(root: Path, path: Path, text: str) -> Path:
@@ -194,28 +191,38 @@ def write_text(root: Path, path: Path, text: str) -> Path:
 
 
 def make_folder(root: Path, path: Path) -> Path:
-    """Folder ``path`` (and its missing parents below ``root``), after :func:`refuse_links`; returns it."""
+    """Folder ``path`` (and its missing parents below ``root``), each made through its parent's descriptor, none a
+    link (:func:`~sgfd_zoo.runs.files.held_folder`); returns it."""
     refuse_links(root, path, "write in")
-    Path(path).mkdir(parents=True, exist_ok=True)
-    return Path(path)
+    with held_folder(root, path, create=True):
+        return Path(path)
 
 
 def save_figure(figure: Any, root: Path, path: Path, **savefig: Any) -> Path:
     """A matplotlib figure saved to ``path`` (its suffix picks the format) through :func:`write_file`."""
+    savefig.setdefault("format", Path(path).suffix.lstrip("."))
     write_file(root, path, lambda tmp: figure.savefig(tmp, **savefig))
     return Path(path)
 
 
 def copy_file(
-    source_root: Path, source: Path, root: Path, path: Path, change: Callable[[str], str] | None = None
+    source_root: Path,
+    source: Path,
+    root: Path,
+    path: Path,
+    change: Callable[[str], str] | None = None,
+    limit: str = "MAX_TEXT_BYTES",
 ) -> StoredFile:
-    """Copy ``source`` (a plain file under ``source_root``, no link on its way) to ``path`` (under ``root``),
-    optionally changing its text on the way.
+    """Copy ``source`` (a plain file under ``source_root``, no link on its way, read through its folder's
+    descriptor) to ``path`` (under ``root``), optionally changing its text on the way.
 
     :param change: applied to the file's text (UTF-8) before it is written; None: the bytes as they are
+    :param limit: the most bytes it may hold: a name in :data:`~sgfd_zoo.runs.bounded.LIMITS`
     """
     refuse_links(source_root, source, "copy")
-    content = Path(source).read_bytes()
+    assert limit in LIMITS, limit
+    with held_folder(source_root, Path(source).parent) as folder, opened(Path(source).name, folder, False) as handle:
+        content = read_bytes(source, limit, handle)
     if change is not None:
         content = change(content.decode()).encode()
     return write_file(root, path, lambda tmp: Path(tmp).write_bytes(content))
@@ -274,31 +281,85 @@ CODE_HYPERPARAMETERS = ("env_wrapper", "vec_env_wrapper", "callback", "replay_bu
 #: ``replay_buffer_class: sb3_sgfd.buffers.DomainReplayBuffer``, as the zoo's own runs write them): importing them
 #: runs only the installed agents' and envs' code.
 TRUSTED_PACKAGES = ("sb3_sgfd.", "sgfd_envs.", "stable_baselines3.", "sb3_contrib.", "rl_zoo3.", "gymnasium.")
+#: What rl-zoo3 and SB3 import by name: ``module.Class``, ``package.module.function``.
+DOTTED_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*)+")
 
 
-def _foreign_names(value: Any) -> list[str]:
-    """The dotted names in ``value`` (a name, or rl-zoo3's list or dict of names with their arguments) outside
-    :data:`TRUSTED_PACKAGES`."""
-    if isinstance(value, str):
-        return [value] if "." in value and not value.startswith(TRUSTED_PACKAGES) else []
-    if isinstance(value, dict):
-        return [name for key in value for name in _foreign_names(str(key))]
-    if isinstance(value, (list, tuple)):
-        return [name for item in value for name in _foreign_names(item)]
-    return []
+def strings_in(value: Any) -> list[str]:
+    """Every string of ``value`` at any depth, the keys of its dicts included (a value read from a file: its size
+    is bounded already, :data:`~sgfd_zoo.runs.bounded.MAX_YAML_NODES`)."""
+    found, stack, visited = [], [value], 0
+    while stack:
+        item = stack.pop()
+        visited += 1
+        if visited > LIMITS["MAX_YAML_NODES"]:
+            raise ValueError(f"it holds more than MAX_YAML_NODES = {LIMITS['MAX_YAML_NODES']} values")
+        if isinstance(item, str):
+            found.append(item)
+        elif isinstance(item, dict):
+            stack += [*item.keys(), *item.values()]
+        elif isinstance(item, list | tuple | set | frozenset):
+            stack += list(item)
+    return found
+
+
+def is_path(text: str) -> bool:
+    """Whether ``text`` reads as a file's path (or a URL): a folder separator, or a start at ``~`` or ``.``."""
+    return "/" in text or "\\" in text or text.startswith(("~", "."))
+
+
+def _code_problem(key: str, value: Any) -> str | None:
+    """Why ``value`` of code hyperparameter ``key`` (``policy``, ``callback``, ...) would import or aim code where
+    it should not: a dotted name at any depth (an argument of a trusted callable included) from outside
+    :data:`TRUSTED_PACKAGES`, or a path given to the code it names."""
+    try:
+        texts = strings_in(value)
+    except ValueError as error:
+        return f"{key}: {error}"
+    for text in texts:
+        if DOTTED_NAME.fullmatch(text) and not text.startswith(TRUSTED_PACKAGES):
+            return f"{key} names code to import ({text!r})"
+        if key != "policy" and is_path(text):
+            return f"{key} gives the code it names a path ({text!r})"
+    return None
 
 
 def hyperparameter_problem(key: str, value: Any) -> str | None:
-    """Why rl-zoo3 would run code for hyperparameter ``key`` = ``value`` (read from a file or a spec), or None: a
-    string it evaluates that is not a literal (:func:`literal_expression`), or a name of code to import from
-    outside the installed agents and envs."""
-    if key in CODE_HYPERPARAMETERS or key == "policy":
-        foreign = _foreign_names(value)
-        if foreign:
-            return f"{key} names code to import ({foreign[0]!r})"
+    """Why rl-zoo3 would run code for hyperparameter ``key`` = ``value`` (read from a run's file), or None: a
+    string it evaluates that is not a literal (:func:`literal_expression`), or, at any depth, a name of code to
+    import from outside the installed agents and envs, or a path handed to the code a hyperparameter names."""
     if key in EVALUATED_HYPERPARAMETERS and isinstance(value, str):
         try:
-            literal_expression(value)
+            value = literal_expression(value)
         except ValueError as error:
             return f"{key}: {error} (rl-zoo3 evaluates it)"
+    if key in (*CODE_HYPERPARAMETERS, *EVALUATED_HYPERPARAMETERS, "policy"):
+        return _code_problem(key, value)
+    return None
+
+
+def spec_setting_problem(flag: str, key: str, value: Any) -> str | None:
+    """Why ``flag KEY:VALUE`` (``-params``, ``--env-kwargs``, ...) may not come from a spec, or None. A spec names
+    no code at any depth: no hyperparameter that imports code (:data:`CODE_HYPERPARAMETERS`), no dotted name
+    anywhere in a value, a ``policy`` by its registered short name only (``MlpPolicy``), and no path.
+
+    :param flag: the flag, for the message
+    :param key: the setting
+    :param value: its value, parsed as a literal
+    """
+    if key in CODE_HYPERPARAMETERS and flag in ("-params", "--hyperparams"):
+        return f"{flag} {key} names code to import ({value!r}): a spec names no callable, class or module"
+    if key == "policy" and flag in ("-params", "--hyperparams"):
+        if isinstance(value, str) and value.isidentifier():
+            return None
+        return f"{flag} policy {value!r} (a policy by its registered short name only, e.g. MlpPolicy)"
+    try:
+        texts = strings_in(value)
+    except ValueError as error:
+        return f"{flag} {key} ({error})"
+    for text in texts:
+        if DOTTED_NAME.fullmatch(text):
+            return f"{flag} {key} names code ({text!r}): a spec names no callable, class or module"
+        if is_path(text):
+            return f"{flag} {key} gives a path ({text!r}): give paths on the command line of whoever runs the study"
     return None

@@ -25,6 +25,8 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper, VecFrameStack
 
+from sgfd_zoo.runs.bounded import UnreadableFile, load_json, load_npz
+
 _NUMPY_CORES = ("numpy.core.multiarray", "numpy._core.multiarray")  # numpy 1's name, numpy 2's
 
 
@@ -74,12 +76,14 @@ def load(path: str | Path) -> dict[str, Any]:
         if not isinstance(state, dict):
             raise ValueError(f"{Path(path).name} is not a training state")
         return state
-    with np.load(path, allow_pickle=False) as data:
-        arrays = {name: data[name] for name in data.files}
+    try:
+        arrays = load_npz(Path(path))  # within the limits of sgfd_zoo.runs.bounded
+    except UnreadableFile as error:
+        raise ValueError(str(error)) from None
     if STRUCTURE not in arrays:
         raise ValueError(f"{Path(path).name} has no {STRUCTURE}")
     try:
-        state = _decode(json.loads(arrays.pop(STRUCTURE).tobytes().decode()), arrays)
+        state = _decode(load_json(arrays.pop(STRUCTURE).tobytes(), f"{path} ({STRUCTURE})"), arrays)
     except TypeError as error:  # e.g. a list as a dict's key
         raise ValueError(f"{Path(path).name} is not a training state ({error})") from None
     if not isinstance(state, dict):

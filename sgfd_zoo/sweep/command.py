@@ -36,7 +36,7 @@ from pathlib import Path
 import sgfd_envs  # before anything imports dm_control: it picks MuJoCo's headless GL backend
 from sgfd_zoo import training
 from sgfd_zoo.algos import SGFD_ALGOS
-from sgfd_zoo.arguments import ZooError, check_log_folder, checked_names, flag_value, has_flag
+from sgfd_zoo.arguments import ZooError, check_log_folder, checked_names, flag_value, has_flag, printable
 from sgfd_zoo.exit_codes import INTERRUPTED
 from sgfd_zoo.report import evaluate
 from sgfd_zoo.runs.folders import find_runs
@@ -168,7 +168,7 @@ def main(argv: list[str], recorded: Collection[tuple[str, str, int | None]] = ()
     args, train_args = parse_args(argv)
     jobs, done, problems = plan(args.folder, args.algos, args.envs, args.seeds, recorded)
     for problem in problems:
-        print(f"sweep: {problem}; read as if it were absent")
+        print(printable(f"sweep: {problem}; read as if it were absent"))
     for job in jobs:  # a link in a run's place would take its writes out of the log folder
         job.run.refuse_links()
     n_resume = sum(job.run.checkpoint is not None for job in jobs)
@@ -183,7 +183,7 @@ def main(argv: list[str], recorded: Collection[tuple[str, str, int | None]] = ()
         training.train(argv, check_only=True)
     failures = locked_runs(jobs)  # another process writes them: not started
     for job, reason in failures:
-        print(f"sweep: {job}: {reason}")
+        print(printable(f"sweep: {job}: {reason}"))
     runnable = [job for job in jobs if job not in dict(failures)]
     lost = None
     if runnable:
@@ -221,7 +221,7 @@ def summary(
     for job, error in failures:
         checkpoint = job.run.checkpoint
         kept = "no checkpoint" if checkpoint is None else f"its checkpoint at {checkpoint.num_timesteps} steps is kept"
-        print(f"  FAILED {job}: {error} ({kept}; log: {job.log_file})")
+        print(printable(f"  FAILED {job}: {error} ({kept}; log: {job.log_file})"))
     for job in stopped:
         checkpoint = job.run.checkpoint
         state = (
