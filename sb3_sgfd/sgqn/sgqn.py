@@ -23,6 +23,7 @@ from sb3_sgfd.sgqn.attribution import (
     mask_observations,
     overlay,
 )
+from sgfd_envs.limits import check_image_file
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".webp")
 
@@ -128,7 +129,8 @@ class SGQNRepresentation(Representation):
 
 
 def read_images(folder: Path) -> np.ndarray:
-    """Every image of ``folder`` (sorted), as (N, H, W, 3) uint8 RGB at the size of the first.
+    """Every image of ``folder`` (sorted), as (N, H, W, 3) uint8 RGB at the size of the first; each at most
+    ``sgfd_envs.limits.MAX_BACKGROUND_PIXELS`` pixels (refused in one line).
 
     :param folder: a folder of images
     """
@@ -139,6 +141,7 @@ def read_images(folder: Path) -> np.ndarray:
         raise ValueError(f"overlay_dir {str(folder)!r} holds no image ({', '.join(IMAGE_SUFFIXES)})")
     images: list[np.ndarray] = []
     for path in files:
+        check_image_file(path, "overlay_dir")  # its pixels bounded from its header, before OpenCV decodes it
         bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if bgr is None:
             raise ValueError(f"overlay_dir: cannot read {path}")

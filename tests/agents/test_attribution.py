@@ -419,3 +419,19 @@ def test_decoder_and_loss_reject_bad_inputs():
         decoder(torch.zeros(2, 4), torch.zeros(3, 2))
     with pytest.raises(ValueError, match="mask must have the shape of logits"):
         attribution_loss(torch.zeros(2, 3, 8, 8), torch.zeros(2, 3, 8, 7, dtype=torch.bool))
+
+
+def test_overlay_images_over_their_pixel_limit_are_refused_before_they_are_decoded(tmp_path):
+    # a 16000 x 16000 PNG's first chunk (its header, 60 bytes): refused by the pixels it declares, nothing decoded
+    import struct
+    import zlib
+
+    from sb3_sgfd.sgqn.sgqn import read_images
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    header = struct.pack(">IIBBBBB", 16000, 16000, 8, 2, 0, 0, 0)
+    (tmp_path / "huge.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IEND", b""))
+    with pytest.raises(ValueError, match=r"overlay_dir: .*huge.png' is 256000000 pixels, over the limit"):
+        read_images(tmp_path)
