@@ -4,12 +4,12 @@
 #   make install                 the install of README.md's "Run the tests" (agents, zoo, tests, docs, Causal World)
 #   make test                    the whole suite, as README.md runs it; PYTEST_ARGS="-n 0 tests/agents" for a part
 #   make lint                    ruff's lint and format checks
-#   make type                    mypy on the four packages (Stable-Baselines3's settings, pyproject.toml)
+#   make type                    mypy on the five packages (Stable-Baselines3's settings, pyproject.toml)
 #   make docs                    the documentation site, warnings as errors, into SITE (default: site/)
 #   make ci                      lint, type, docs, then test
 
 PYTHON ?= python
-PACKAGES := sb3_sgfd sgfd_envs sgfd_zoo sgfd_analysis
+PACKAGES := sb3_sgfd sgfd_envs sgfd_zoo sgfd_analysis sgfd_cli
 SITE ?= site
 PYTEST_ARGS ?=
 

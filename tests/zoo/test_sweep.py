@@ -24,7 +24,7 @@ import pytest
 import ray
 import yaml
 
-from sgfd_zoo import cli
+import sgfd_cli as cli
 from sgfd_zoo.runs.checkpoints import Checkpoint, read_index, write_index
 from sgfd_zoo.runs.files import atomic_write
 from sgfd_zoo.runs.folders import RunFolder, find_runs, mark_finished
@@ -297,7 +297,7 @@ def test_sweep_on_an_existing_cluster_skips_finished_runs_and_resumes_a_crashed_
     argv = ["sweep", "--algos", "sgfd_sac", "--envs", ENV, "--seeds", "0", "1", "-f", str(folder)]
     argv += ["--address", ray_cluster, "--no-evaluate", *TINY, "-n", "900"]  # the resumed run goes on to 900
     result = subprocess.run(
-        [sys.executable, "-m", "sgfd_zoo.cli", *argv],
+        [sys.executable, "-m", "sgfd_cli", *argv],
         capture_output=True,
         text=True,
         timeout=600,
@@ -326,7 +326,7 @@ def test_a_sweep_on_a_gpu_node_packs_its_runs_by_the_rule(tmp_path: Path) -> Non
         argv = ["sweep", "--algos", "sac", "--envs", ENV, "--seeds", "0", "-f", str(tmp_path / "logs")]
         argv += ["--address", ray.get_runtime_context().gcs_address, "--no-evaluate", *TINY]
         result = subprocess.run(
-            [sys.executable, "-m", "sgfd_zoo.cli", *argv], capture_output=True, text=True, timeout=600, cwd=tmp_path
+            [sys.executable, "-m", "sgfd_cli", *argv], capture_output=True, text=True, timeout=600, cwd=tmp_path
         )
     finally:
         ray.shutdown()
@@ -349,7 +349,7 @@ def test_ctrl_c_stops_each_running_run_at_a_checkpoint_that_the_same_command_res
         # own processes alike. Its SIGINT is a terminal's too: a test run started in the background (nohup, &)
         # ignores SIGINT, and a Python started ignoring it never raises KeyboardInterrupt.
         sweep_process = subprocess.Popen(
-            [sys.executable, "-m", "sgfd_zoo.cli", *argv],
+            [sys.executable, "-m", "sgfd_cli", *argv],
             stdout=out,
             stderr=subprocess.STDOUT,
             start_new_session=True,
@@ -459,7 +459,7 @@ def test_sweep_attaches_to_a_ray_start_cluster_with_token_authentication(tmp_pat
     head, elsewhere, logs = tmp_path / "head", tmp_path / "elsewhere", tmp_path / "logs"
     elsewhere.mkdir()
     with ray_start_cluster(head, token=True) as (address, _temp):
-        argv = [sys.executable, "-m", "sgfd_zoo.cli", "sweep", "--algos", "sac", "--envs", ENV, "--seeds", "0"]
+        argv = [sys.executable, "-m", "sgfd_cli", "sweep", "--algos", "sac", "--envs", ENV, "--seeds", "0"]
         argv += ["-f", str(logs), "--address", address, "--no-evaluate", *TINY]
         # A machine without the cluster's token: one line naming authentication and what to do.
         refused = subprocess.run(argv, env=_sweep_env(elsewhere), capture_output=True, text=True, timeout=300)
@@ -526,7 +526,7 @@ def test_a_sweep_whose_cluster_goes_away_exits_75_naming_it_with_where_each_run_
         argv += ["--no-evaluate", "--progress-interval", "1", *flags]
         with out_file.open("w") as out:
             process = subprocess.Popen(
-                [sys.executable, "-m", "sgfd_zoo.cli", *argv],
+                [sys.executable, "-m", "sgfd_cli", *argv],
                 stdout=out,
                 stderr=subprocess.STDOUT,
                 env=_sweep_env(home),

@@ -16,10 +16,10 @@ import torch as th
 import yaml
 
 import sgfd_envs
+from sgfd_cli import main as zoo_main
 from sgfd_zoo import training
 from sgfd_zoo.algos import SGFD_ALGOS, hyperparams_file
 from sgfd_zoo.arguments import ZooError
-from sgfd_zoo.cli import main as zoo_main
 from sgfd_zoo.experiment import SGFDExperimentManager, register_algorithms
 from sgfd_zoo.report.evaluate import read_results, render_tables
 from sgfd_zoo.runs import provenance
@@ -35,7 +35,7 @@ TINY_PARAMS = ["-params", "learning_starts:200", "classifier_start:300", "policy
 
 def zoo(*args: str, check: bool = True, timeout: float = 600) -> subprocess.CompletedProcess:
     result = subprocess.run(
-        [sys.executable, "-m", "sgfd_zoo.cli", *args], capture_output=True, text=True, timeout=timeout, check=False
+        [sys.executable, "-m", "sgfd_cli", *args], capture_output=True, text=True, timeout=timeout, check=False
     )
     if check and result.returncode != 0:
         raise AssertionError(f"sgfd-zoo {' '.join(args)} failed:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}")
@@ -280,7 +280,7 @@ def test_the_forms_rl_zoo3_documents_pass_the_value_check_and_are_not_run():
 
 
 def test_train_help_is_one_usage_block_of_the_zoos_algorithms_and_loads_no_training_stack():
-    code = "import sys; from sgfd_zoo.cli import main; main(['train', '--help']); "
+    code = "import sys; from sgfd_cli import main; main(['train', '--help']); "
     code += "print(sorted(m for m in ('torch', 'rl_zoo3', 'sgfd_envs', 'stable_baselines3') if m in sys.modules))"
     started = time.perf_counter()
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
@@ -343,7 +343,7 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(algo, tmp_path):
     train_args = ["train", "--algo", algo, "--env", ENV_ID, "-f", str(logs), "--seed", "0", *TINY[:1]]
     train_args += ["--num-threads", "1", "--no-progress", "--verbose", "0", *params, "--eval-episodes", "1"]
     process = subprocess.Popen(
-        [sys.executable, "-m", "sgfd_zoo.cli", *train_args, "-n", "100000", *save],
+        [sys.executable, "-m", "sgfd_cli", *train_args, "-n", "100000", *save],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
@@ -411,7 +411,7 @@ def test_a_run_killed_and_resumed_ends_where_an_unbroken_run_ends_bit_for_bit(al
     zoo(*common, "-f", str(tmp_path / "straight"), "-n", "800")
     broken = tmp_path / "broken"
     process = subprocess.Popen(
-        [sys.executable, "-m", "sgfd_zoo.cli", *common, "-f", str(broken), "-n", "100000"],
+        [sys.executable, "-m", "sgfd_cli", *common, "-f", str(broken), "-n", "100000"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
