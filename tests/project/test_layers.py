@@ -245,3 +245,28 @@ def test_common_knows_no_algorithm():
         modules = {name for name in names if any(f"{folder}." in f"{name}." for folder in folders)}
         named += [f"{path.relative_to(REPO)}: {name}" for name in sorted((names & algorithm_names) | modules)]
     assert not named, named
+
+
+def _private_module(module: str) -> bool:
+    """Whether ``module`` is a private module of another package (a part of its path begins with ``_``)."""
+    return module.split(".")[0] not in PACKAGES and any(part.startswith("_") for part in module.split(".")[1:])
+
+
+def test_no_module_reaches_into_another_packages_internals() -> None:
+    """Other packages through their public names only: no private module (``ray._private``, ``ray._raylet``), no
+    ``sys.argv`` rewritten for another package's parser, no attribute of another package's module replaced."""
+    others = {"rl_zoo3", "ray", "stable_baselines3", "sb3_contrib", "gymnasium"}
+    reached = []
+    for name, tree in parsed_modules().items():
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                modules = [node.module, *(f"{node.module}.{alias.name}" for alias in node.names)]
+                reached += [f"{name} imports {module}" for module in modules if _private_module(module)]
+            elif isinstance(node, ast.Import):
+                reached += [f"{name} imports {a.name}" for a in node.names if _private_module(a.name)]
+            elif isinstance(node, ast.Assign) and "sys.argv" in map(ast.unparse, node.targets):
+                reached.append(f"{name} sets sys.argv")
+            elif isinstance(node, ast.Call) and ast.unparse(node.func) == "setattr" and node.args:
+                owner = ast.unparse(node.args[0])
+                reached += [f"{name} replaces an attribute of {owner}"] if owner.split(".")[0] in others else []
+    assert not reached, reached

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import json
 import os
 import re
 import shlex
@@ -479,23 +480,35 @@ def test_sweep_attaches_to_a_ray_start_cluster_with_token_authentication(tmp_pat
     assert command[command.index("--run-id") + 1] == "1" and "default_worker" not in " ".join(command)
 
 
+LISTENING = """
+import argparse, json, psutil
+from sgfd_zoo.sweep import ray_runs
+ray_runs.start_ray(argparse.Namespace(address=None, num_cpus=1, ray_logs=False, gpus_per_run=0.0))
+import ray  # as the sweep imports it: after its environment is set
+try:
+    assert ray.get(ray.remote(lambda: 1).remote()) == 1  # a worker process, listening too
+    nodes = [node["NodeManagerAddress"] for node in ray.nodes()]
+    processes = {process.pid: process.name() for process in psutil.Process().children(recursive=True)}
+    listening = [
+        (processes[connection.pid], connection.laddr.ip)
+        for connection in psutil.net_connections("inet")
+        if connection.status == psutil.CONN_LISTEN and connection.pid in processes
+    ]
+finally:
+    ray.shutdown()
+print(json.dumps({"nodes": nodes, "listening": listening}))
+"""
+
+
 def test_a_local_sweeps_ray_listens_on_loopback_only() -> None:
-    import argparse
-
-    import psutil
-
-    ray_runs.start_ray(argparse.Namespace(address=None, num_cpus=1, ray_logs=False, gpus_per_run=0.0))
-    try:
-        assert ray.get(ray.remote(lambda: 1).remote()) == 1  # a worker process, listening too
-        assert [node["NodeManagerAddress"] for node in ray.nodes()] == ["127.0.0.1"]
-        processes = {process.pid: process.name() for process in psutil.Process().children(recursive=True)}
-        listening = [
-            (processes[connection.pid], connection.laddr.ip)
-            for connection in psutil.net_connections("inet")
-            if connection.status == psutil.CONN_LISTEN and connection.pid in processes
-        ]
-    finally:
-        ray.shutdown()
+    # In a process of its own, as `sgfd-zoo sweep` runs, without the tests' setting (conftest.py): the zoo's own
+    # environment for Ray, set before Ray is imported, binds the instance to loopback.
+    env = {key: value for key, value in os.environ.items() if key != ray_runs.CLUSTERS_VARIABLE}
+    result = subprocess.run([sys.executable, "-c", LISTENING], env=env, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    found = json.loads(result.stdout.strip().splitlines()[-1])
+    assert found["nodes"] == ["127.0.0.1"]
+    listening = found["listening"]
     assert {"gcs_server", "raylet"} <= {name for name, _ in listening}, listening
     assert all(ip in ("127.0.0.1", "::ffff:127.0.0.1", "::1") for _, ip in listening), listening
 
