@@ -62,6 +62,9 @@ class ZooArgumentParser(argparse.ArgumentParser):
 
     def __init__(self, *args: Any, **kwargs: Any):
         kwargs["allow_abbrev"] = False
+        for text in ("description", "epilog"):  # plain before argparse wraps it; format_help catches the rest
+            if kwargs.get(text):
+                kwargs[text] = plain_text(kwargs[text])
         super().__init__(*args, **kwargs)
 
     def format_help(self) -> str:

@@ -6,7 +6,6 @@ benchmark's data (no ``data_dir``/``background_dir`` in the run's env kwargs) is
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
 import time
@@ -20,7 +19,7 @@ from pytablewriter import MarkdownTableWriter
 import sgfd_envs
 from sgfd_envs.registry import BENCHMARK_KINDS, benchmark_of
 from sgfd_zoo.algos import algo_sort_key, column_name
-from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id, train_command
+from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_at_least, check_env_id, train_command
 from sgfd_zoo.report.statistics import (
     MAX_RETURN,
     STAND_IN_MARK,
@@ -295,7 +294,7 @@ def _files_now(folder: Path) -> set[Path]:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="sgfd-zoo evaluate", description=__doc__)
+    parser = ZooArgumentParser(prog="sgfd-zoo evaluate", description=__doc__)
     parser.add_argument("-f", "--folder", required=True, type=Path, help="log folder of sgfd-zoo train")
     parser.add_argument("--algo", nargs="+", help="only these algorithm keys")
     parser.add_argument("--env", nargs="+", help="only these env ids")
