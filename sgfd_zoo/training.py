@@ -36,10 +36,18 @@ def check_tracking(args: argparse.Namespace) -> None:
     if args.track:
         wanted.append(("wandb", "--track"))
     for module, flag in wanted:
-        if importlib.util.find_spec(module) is None:
+        if not installed(module):
             raise ZooError(
                 f"{flag} needs {module}, which the track extra brings: from the clone's root, {TRACK_INSTALL}"
             )
+
+
+def installed(module: str) -> bool:
+    """Whether the top-level ``module`` can be imported (found without importing it)."""
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):  # a finder that refuses it; a module without a spec
+        return False
 
 
 def key_values(flag: str, items: Sequence[str] | None) -> dict[str, Any] | None:
