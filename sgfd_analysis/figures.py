@@ -33,10 +33,10 @@ import sgfd_envs
 from sb3_sgfd.sgfd.functional import classifier_accuracy, effective_sample_size
 from sgfd_zoo.algos import column_name
 from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_env_id
-from sgfd_zoo.experiment import wrap_like_training
 from sgfd_zoo.report.plot import mean_and_band
 from sgfd_zoo.runs.folders import RunFolder, env_name, find_runs, select_run
 from sgfd_zoo.runs.safe import make_folder, save_figure, write_text
+from sgfd_zoo.vec_wrappers import wrap_like_training
 
 # Inches per image panel; the figures are grids of these.
 PANEL = 1.3

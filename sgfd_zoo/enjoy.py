@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sgfd_zoo.arguments import ZooArgumentParser, ZooError, import_gym_packages
+from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_env_id, check_key_values, import_gym_packages
 from sgfd_zoo.trained import TrainedAgent, add_agent_options, display_available, find_agent, load_model, make_env
 
 
@@ -46,6 +46,8 @@ def main(argv: Sequence[str]) -> int:
     args = parser.parse_args(argv)
     if args.n_timesteps < 1 or args.n_envs < 1:
         raise ZooError(f"-n and --n-envs must be >= 1, got -n {args.n_timesteps} --n-envs {args.n_envs}")
+    check_env_id(args.env)
+    check_key_values("--env-kwargs", args.env_kwargs)  # the arguments first: then what this machine can show
     if not args.no_render:
         check_window()
     import_gym_packages(args.gym_packages)

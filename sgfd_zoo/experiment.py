@@ -10,13 +10,11 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, cast
 
-from gymnasium import spaces
 from rl_zoo3.exp_manager import ExperimentManager
 from rl_zoo3.utils import ALGOS, get_class_by_name
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import ProgressBarCallback
-from stable_baselines3.common.preprocessing import is_image_space, is_image_space_channels_first
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecFrameStack, VecTransposeImage
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 import sgfd_envs
 from sb3_sgfd.common.validation import RefusedTransition
@@ -55,6 +53,7 @@ from sgfd_zoo.runs.locks import ClaimedRun, claim_new_run, claim_run
 from sgfd_zoo.runs.resuming import choose_checkpoint, load_checkpoint, prepare_restart, run_to_resume
 from sgfd_zoo.runs.safe import refuse_links
 from sgfd_zoo.runs.training_state import RestoreTrainingState
+from sgfd_zoo.vec_wrappers import wrap_like_training
 
 # Errors of a write that a full disk (or quota, or file size limit) causes.
 NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
@@ -289,8 +288,8 @@ class SGFDExperimentManager(ExperimentManager):
             print(f"warning: {too_short}", file=sys.stderr)
         if self.continue_training:
             return super().setup_experiment()
-        for stale in Path(self.save_path).glob("*.monitor.csv") if self.checkpoint is None else ():
-            stale.unlink()  # a run started again from step 0 logs its episodes afresh; a resumed one continues
+        if self.checkpoint is None:
+            self._forget_monitor_files()
         env = self.create_envs(self.n_envs)
         self._hyperparams = self._preprocess_action_noise(hyperparams, saved_hyperparams, env)
         if self.checkpoint is None:
@@ -331,6 +330,11 @@ class SGFDExperimentManager(ExperimentManager):
         elif self.run_id is not None:
             prepare_restart(run, self.train_command(resume=True))
 
+    def _forget_monitor_files(self) -> None:
+        """A run that starts from step 0 logs its episodes afresh (a resumed one continues its monitor files)."""
+        for path in Path(self.save_path).glob("*.monitor.csv"):
+            path.unlink()
+
     def release_run_folder(self) -> None:
         """Give the run's lock back; a folder claimed for a run that wrote nothing goes too."""
         if self.claimed is not None:
@@ -370,6 +374,7 @@ class SGFDExperimentManager(ExperimentManager):
             )
         except (TypeError, ValueError) as error:
             env.close()
+            self._forget_monitor_files()  # the run has not started: its folder goes again
             raise ZooError(
                 f"{self.algo} on {self.env_name.gym_id} cannot be built from this configuration: "
                 f"{type(error).__name__}: {first_line(error)}"
@@ -486,15 +491,3 @@ class SGFDExperimentManager(ExperimentManager):
                     f"free space, then {self._next_command()}"
                 ) from None
         return None
-
-
-def wrap_like_training(env: VecEnv, frame_stack: int | None, normalize=None, eval_env: bool = True) -> VecEnv:
-    """Frame stacking and channel-first transposition, as rl-zoo3 wraps its training envs."""
-    if normalize is not None:
-        env = normalize(env, eval_env)
-    if frame_stack:
-        env = VecFrameStack(env, frame_stack)
-    space = env.observation_space
-    if isinstance(space, spaces.Box) and is_image_space(space) and not is_image_space_channels_first(space):
-        env = VecTransposeImage(env)
-    return env

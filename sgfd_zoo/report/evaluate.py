@@ -48,7 +48,7 @@ def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[st
     """
     from stable_baselines3.common.evaluation import evaluate_policy
 
-    from sgfd_zoo.experiment import wrap_like_training
+    from sgfd_zoo.vec_wrappers import wrap_like_training
 
     modes = sgfd_envs.evaluation_modes(run.env_id)
     key = {
