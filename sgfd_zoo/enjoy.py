@@ -38,12 +38,7 @@ def enjoy_parser() -> ZooArgumentParser:
 
 def main(argv: Sequence[str]) -> int:
     """``sgfd-zoo enjoy`` on ``argv`` (the command line after ``enjoy``)."""
-    parser = enjoy_parser()
-    argv = list(argv)
-    if "-h" in argv or "--help" in argv:
-        parser.print_help()
-        return 0
-    args = parser.parse_args(argv)
+    args = enjoy_parser().parse_args(list(argv))
     if args.n_timesteps < 1 or args.n_envs < 1:
         raise ZooError(f"-n and --n-envs must be >= 1, got -n {args.n_timesteps} --n-envs {args.n_envs}")
     check_env_id(args.env)

@@ -103,6 +103,7 @@ def _run(
 ) -> int:
     """What ``rl_zoo3.train.train`` does after parsing, with the zoo's experiment manager."""
     import numpy as np
+    import rl_zoo3  # noqa: F401 (before Stable-Baselines3: without the zoo's install, its line is the only one)
     import torch as th
     from stable_baselines3.common.utils import set_random_seed
 

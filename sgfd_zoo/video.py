@@ -41,12 +41,7 @@ def video_parser() -> ZooArgumentParser:
 
 def main(argv: Sequence[str]) -> int:
     """``sgfd-zoo record-video`` on ``argv`` (the command line after ``record-video``)."""
-    parser = video_parser()
-    argv = list(argv)
-    if "-h" in argv or "--help" in argv:
-        parser.print_help()
-        return 0
-    args = parser.parse_args(argv)
+    args = video_parser().parse_args(list(argv))
     check_at_least("-n", args.n_timesteps, 1)
     check_at_least("--scale", args.scale, 1)
     check_at_least("--fps", args.fps, 1)
@@ -57,9 +52,9 @@ def main(argv: Sequence[str]) -> int:
     agent = find_agent(args)
     folder = Path(args.output_folder) if args.output_folder else agent.run.path / "videos"
     path = folder / f"{video_name(agent)}-step-0-to-step-{args.n_timesteps}.mp4"
-    written = record_video(agent, path, args.n_timesteps, args.seed, args.device, not args.stochastic, args.scale,
-                           args.fps, root=None if args.output_folder else agent.run.root)  # fmt: skip
-    print(f"Saved {written}")
+    shown = {"seed": args.seed, "device": args.device, "deterministic": not args.stochastic, "scale": args.scale}
+    root = None if args.output_folder else agent.run.root  # inside the log folder: no link followed on the way
+    print(f"Saved {record_video(agent, path, args.n_timesteps, fps=args.fps, root=root, **shown)}")
     return 0
 
 

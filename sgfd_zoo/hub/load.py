@@ -52,12 +52,7 @@ def load_parser() -> ZooArgumentParser:
 
 def main(argv: Sequence[str]) -> int:
     """``sgfd-zoo load-from-hub`` on ``argv`` (the command line after ``load-from-hub``)."""
-    parser = load_parser()
-    argv = list(argv)
-    if "-h" in argv or "--help" in argv:
-        parser.print_help()
-        return 0
-    args = parser.parse_args(argv)
+    args = load_parser().parse_args(list(argv))
     check_env_id(args.env)
     if (args.organization is None) == (args.from_dir is None):
         raise ZooError("give the repository's -orga (and -name), or --from-dir with a local copy of it; one of them")

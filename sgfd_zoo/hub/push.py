@@ -62,12 +62,7 @@ def push_parser() -> ZooArgumentParser:
 
 def main(argv: Sequence[str]) -> int:
     """``sgfd-zoo push-to-hub`` on ``argv`` (the command line after ``push-to-hub``)."""
-    parser = push_parser()
-    argv = list(argv)
-    if "-h" in argv or "--help" in argv:
-        parser.print_help()
-        return 0
-    args = parser.parse_args(argv)
+    args = push_parser().parse_args(list(argv))
     check_at_least("--n-episodes", args.n_episodes, 1)
     check_at_least("-n", args.n_timesteps, 1)
     if args.organization is None and args.dry_run is None:
