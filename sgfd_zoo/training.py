@@ -194,7 +194,8 @@ def _start_tracking(args: argparse.Namespace, command: list[str]) -> Any:
     import wandb
 
     args.command = shlex.join(["sgfd-zoo", "optimize" if args.optimize_hyperparameters else "train", *command])
-    run_name = f"{args.env}__{args.algo}__{args.seed}__{int(time.time())}"
+    # rl-zoo3's name, with the env's path name: an id's "/" would nest the folder (SGFD/MT-... -> SGFD-MT-...)
+    run_name = f"{args.env.replace('/', '-')}__{args.algo}__{args.seed}__{int(time.time())}"
     run = wandb.init(
         name=run_name,
         project=args.wandb_project_name,
