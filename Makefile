@@ -5,12 +5,12 @@
 #   make test                    the whole suite, as README.md runs it; PYTEST_ARGS="-n 0 tests/agents" for a part
 #   make test-fast               the tests not marked slow: the edit loop's check
 #   make lint                    ruff's lint and format checks
-#   make type                    mypy on the four packages (Stable-Baselines3's settings, pyproject.toml)
+#   make type                    mypy on the five packages (Stable-Baselines3's settings, pyproject.toml)
 #   make docs                    the documentation site, warnings as errors, into SITE (default: site/)
 #   make ci                      lint, type, docs, then test
 
 PYTHON ?= python
-PACKAGES := sb3_sgfd sgfd_envs sgfd_zoo sgfd_analysis
+PACKAGES := sb3_sgfd sgfd_envs sgfd_zoo sgfd_analysis sgfd_cli
 SITE ?= site
 PYTEST_ARGS ?=
 

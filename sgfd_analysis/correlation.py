@@ -40,7 +40,7 @@ from sb3_sgfd.sgfd.functional import (
     train_classifier,
     weighted_pearson,
 )
-from sgfd_zoo.arguments import ZooError
+from sgfd_zoo.arguments import ZooArgumentParser, ZooError
 
 WEIGHTINGS = ("raw", "global", "sgfd")
 TITLES = {"raw": "(a) raw data", "global": "(b) global decorrelation", "sgfd": "(c) SGFD (saliency-guided)"}
@@ -430,7 +430,7 @@ def report(result: StudyResult) -> str:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(
+    parser = ZooArgumentParser(
         prog="sgfd-zoo correlation-study", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--env", required=True, help=f"one of {', '.join(study_env_ids())}")

@@ -32,11 +32,11 @@ from stable_baselines3.sac import SAC
 import sgfd_envs
 from sb3_sgfd.sgfd.functional import classifier_accuracy, effective_sample_size
 from sgfd_zoo.algos import column_name
-from sgfd_zoo.arguments import ZooError, check_env_id
-from sgfd_zoo.experiment import wrap_like_training
+from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_env_id
 from sgfd_zoo.report.plot import mean_and_band
 from sgfd_zoo.runs.folders import RunFolder, env_name, find_runs, select_run
 from sgfd_zoo.runs.safe import make_folder, save_figure, write_text
+from sgfd_zoo.vec_wrappers import wrap_like_training
 
 # Inches per image panel; the figures are grids of these.
 PANEL = 1.3
@@ -411,7 +411,7 @@ def accuracy_figure(env_id: str, by_algo: dict[str, list[dict[str, Any]]]) -> Fi
 
 
 def classifier_accuracy_main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(
+    parser = ZooArgumentParser(
         prog="sgfd-zoo classifier-accuracy", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("-f", "--folder", required=True, type=Path, help="log folder of sgfd-zoo train")
@@ -450,7 +450,7 @@ def classifier_accuracy_main(argv: list[str]) -> int:
 
 
 def _run_parser(prog: str, description: str) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=prog, description=description)
+    parser = ZooArgumentParser(prog=prog, description=description)
     parser.add_argument("-f", "--folder", required=True, type=Path, help="log folder of sgfd-zoo train")
     parser.add_argument("--env", required=True, help="the SGFD id the agent trained on")
     parser.add_argument("--algo", default="sgfd_sac", help="algorithm key of the run (default sgfd_sac)")

@@ -42,6 +42,9 @@ def refusing_other_kwargs(builder: Builder) -> Builder:
             )
         return builder(env_id, *args, **kwargs)
 
+    # What gymnasium.make reads: render_mode="human" then builds the env for "rgb_array" and shows its frames in a
+    # window (gymnasium's HumanRendering wrapper, drawn with pygame).
+    build.metadata = {"render_modes": ["rgb_array"], "render_fps": 25}  # type: ignore[attr-defined]
     return cast(Builder, build)
 
 

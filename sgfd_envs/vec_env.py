@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import difflib
 import functools
+import os
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -14,8 +15,6 @@ from sgfd_envs.state import ResumableState
 
 if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
-
-    Normalize = Callable[[VecEnv, bool], VecEnv]
 
 
 def _stable_baselines3() -> Any:
@@ -31,13 +30,22 @@ def _stable_baselines3() -> Any:
     return vec_env
 
 
-def _make_monitored_env(env_id: str, split: str, domain: int, action_seed: int, env_kwargs: dict) -> gym.Env:
+def _make_monitored_env(
+    env_id: str, split: str, domain: int, action_seed: int, env_kwargs: dict, monitor_file: str | None = None
+) -> gym.Env:
     from stable_baselines3.common.monitor import Monitor
 
     env = gym.make(env_id, split=split, domain=domain, **env_kwargs)
     env.action_space.seed(action_seed)
+    # A file that exists is continued (a resumed run), not overwritten; a new one starts with Monitor's header.
+    fresh = monitor_file is None or not os.path.exists(monitor_file)
     # outermost, so that SB3's env_method reaches it in a subprocess too
-    return ResumableState(Monitor(env))
+    return ResumableState(Monitor(env, filename=monitor_file, override_existing=fresh))
+
+
+def _monitor_file(folder: str | None, index: int) -> str | None:
+    """SB3's monitor file of sub-env ``index`` in ``folder`` (``make_vec_env``'s name), or None."""
+    return None if folder is None else os.path.join(folder, f"{index}.monitor.csv")
 
 
 def make_domain_vec_env(
@@ -46,6 +54,7 @@ def make_domain_vec_env(
     n_envs: int | None = None,
     seed: int = 0,
     vec_env_cls: type[DummyVecEnv | SubprocVecEnv] | None = None,
+    monitor_dir: str | None = None,
     **env_kwargs,
 ) -> VecEnv:
     """An SB3 VecEnv with one sub-env per domain of a split (sub-env i is domain i % n_domains).
@@ -58,6 +67,8 @@ def make_domain_vec_env(
     :param n_envs: number of sub-envs, default one per domain
     :param seed: seed of sub-env 0
     :param vec_env_cls: SB3's DummyVecEnv (the default) or SubprocVecEnv
+    :param monitor_dir: a folder for SB3's monitor files, ``<i>.monitor.csv`` per sub-env (rl-zoo3's layout, which
+        its ``plot_train`` reads); an existing file is continued. None: no files
     :param env_kwargs: more kwargs for ``gym.make`` (``obs_type``, ``image_size``, ``background_dir``...)
     """
     default_vec_env_cls = _stable_baselines3().DummyVecEnv
@@ -77,33 +88,11 @@ def make_domain_vec_env(
     # A module-level function in a partial pickles by reference, so a subprocess imports sgfd_envs
     # (registering the ids) before it builds its env.
     factories: list[Callable[[], gym.Env]] = [
-        functools.partial(_make_monitored_env, env_id, split, i % count, seed + i, env_kwargs) for i in range(n_envs)
+        functools.partial(
+            _make_monitored_env, env_id, split, i % count, seed + i, env_kwargs, _monitor_file(monitor_dir, i)
+        )
+        for i in range(n_envs)
     ]
     vec_env = (vec_env_cls or default_vec_env_cls)(factories)
     vec_env.seed(seed)
     return vec_env
-
-
-def wrap_like_training(
-    env: VecEnv, frame_stack: int | None, normalize: Normalize | None = None, eval_env: bool = True
-) -> VecEnv:
-    """``env`` wrapped as rl-zoo3 wraps its training envs (and sgfd-zoo its evaluation envs): normalised by
-    ``normalize(env, eval_env)``, its last ``frame_stack`` observations stacked, its images made channel-first.
-
-    :param env: a vector env (:func:`make_domain_vec_env`)
-    :param frame_stack: observations stacked (None or 0: none)
-    :param normalize: the normaliser to apply, if any
-    :param eval_env: whether ``env`` evaluates (for ``normalize``)
-    """
-    from gymnasium import spaces
-    from stable_baselines3.common.preprocessing import is_image_space, is_image_space_channels_first
-
-    vec_env = _stable_baselines3()
-    if normalize is not None:
-        env = normalize(env, eval_env)
-    if frame_stack:
-        env = vec_env.VecFrameStack(env, frame_stack)
-    space = env.observation_space
-    if isinstance(space, spaces.Box) and is_image_space(space) and not is_image_space_channels_first(space):
-        env = vec_env.VecTransposeImage(env)
-    return env

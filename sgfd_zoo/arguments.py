@@ -3,16 +3,18 @@ them too: the env registry is imported only to check an env id)."""
 
 from __future__ import annotations
 
+import argparse
 import ast
 import builtins
 import difflib
+import importlib
 import os
 import re
 import shlex
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from types import ModuleType
-from typing import Any
+from typing import Any, NoReturn
 
 #: What a terminal acts on rather than shows: C0 and C1 controls (escape sequences, line breaks), DEL, and the
 #: invisible marks that reorder or hide text (bidirectional overrides and isolates, zero-width characters).
@@ -58,6 +60,57 @@ class TrainingStopped(ZooError):
     def __init__(self, message: str, exit_code: int = 1):
         super().__init__(message)
         self.exit_code = exit_code
+
+
+#: A Sphinx cross-reference in a docstring: ``:mod:`sgfd_zoo.runs```, ``:func:`~sgfd_envs.splits```
+SPHINX_ROLE = re.compile(r":(?:py:)?[a-z]+:`(~?)([^`<]*?)(?:\s*<[^>]*>)?`")
+
+
+def plain_text(text: str) -> str:
+    """``text`` (a docstring, a help line) without Sphinx's markup, as a terminal shows it: a cross-reference
+    becomes its target's name (``~`` its last part), a double-backquoted literal its text."""
+
+    def name(match: re.Match[str]) -> str:
+        target = match.group(2).strip()
+        return target.rsplit(".", 1)[-1] if match.group(1) else target
+
+    return SPHINX_ROLE.sub(name, text).replace("``", "")
+
+
+class ZooArgumentParser(argparse.ArgumentParser):
+    """The parser of every ``sgfd-zoo`` command: no abbreviated option (``--qui`` is not taken for ``--quick``,
+    nor passed on for another parser to read differently), help without Sphinx markup, and an error as a
+    :class:`ZooError`, which the command prints as one line (argparse would print its usage block first)."""
+
+    def __init__(self, *args: Any, **kwargs: Any):
+        kwargs["allow_abbrev"] = False
+        for text in ("description", "epilog"):  # plain before argparse wraps it; format_help catches the rest
+            if kwargs.get(text):
+                kwargs[text] = plain_text(kwargs[text])
+        super().__init__(*args, **kwargs)
+
+    def format_help(self) -> str:
+        return plain_text(super().format_help())
+
+    def format_usage(self) -> str:
+        return plain_text(super().format_usage())
+
+    def error(self, message: str) -> NoReturn:
+        whole = "; an option is taken by its whole name only" if message.startswith("unrecognized arguments") else ""
+        raise ZooError(f"{message}{whole} (see {self.prog} -h)")
+
+
+def import_gym_packages(modules: Sequence[str]) -> None:
+    """Import the modules a user names with ``--gym-packages`` (their own env packages, which register ids on
+    import), as rl-zoo3's scripts do; a module that is not there is named in one line.
+
+    :param modules: module names from the command line
+    """
+    for module in modules:
+        try:
+            importlib.import_module(module)
+        except ModuleNotFoundError as error:
+            raise ZooError(f"--gym-packages {module}: no such module ({error})") from None
 
 
 def check_env_id(env_id: str | None, flag: str = "--env") -> str:

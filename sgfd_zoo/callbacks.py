@@ -19,12 +19,17 @@ from stable_baselines3.common.vec_env import VecEnv
 from sgfd_zoo.runs.bounded import load_npz
 from sgfd_zoo.runs.files import UnreadableFile, atomic_write
 
+#: The split whose evaluations rl-zoo3's file holds (its EvalCallback evaluates on the training envs), and the file
+TRAIN_SPLIT, RL_ZOO3_EVALUATIONS = "train", "evaluations.npz"
+
 
 class MultiSplitEvalCallback(BaseCallback):
     """
     Every ``eval_freq`` calls, evaluate the policy on the domains of several splits (training domains
     and the unseen ones), log ``eval/<split>/mean_reward`` and append to ``evaluations_<split>.npz``
-    (same arrays as SB3's EvalCallback: timesteps, results, ep_lengths).
+    (same arrays as SB3's EvalCallback: timesteps, results, ep_lengths). The training split's are also written
+    as ``evaluations.npz``, where rl-zoo3's EvalCallback writes its own (on the training envs): rl-zoo3's
+    ``all_plots`` reads that file.
 
     :param eval_envs: Split name -> VecEnv with one sub-env per domain of that split
     :param eval_freq: Evaluate every this many calls (env steps divided by the number of train envs)
@@ -94,7 +99,8 @@ class MultiSplitEvalCallback(BaseCallback):
             if path is not None:
                 path.parent.mkdir(parents=True, exist_ok=True)
                 arrays = {key: np.array(value) for key, value in history.items()}
-                atomic_write(path, functools.partial(_save_arrays, arrays=arrays))
+                for file in (path, path.with_name(RL_ZOO3_EVALUATIONS)) if split == TRAIN_SPLIT else (path,):
+                    atomic_write(file, functools.partial(_save_arrays, arrays=arrays))
             means[split] = float(np.mean(rewards))
             self.logger.record(f"eval/{split}/mean_reward", means[split])
             self.logger.record(f"eval/{split}/std_reward", float(np.std(rewards)))

@@ -19,7 +19,6 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 import sgfd_envs
 from sb3_sgfd.common.validation import RefusedTransition
 from sgfd_envs.backgrounds import overlay_bank
-from sgfd_envs.vec_env import wrap_like_training as wrap_like_training  # (its home before it moved there, kept)
 from sgfd_zoo.algos import SGFD_ALGOS, classifier_start_warning, hyperparams_file, is_sgfd
 from sgfd_zoo.arguments import TrainingStopped, ZooError, train_command
 from sgfd_zoo.callbacks import CSVLogCallback, MultiSplitEvalCallback, ProgressCallback
@@ -54,6 +53,7 @@ from sgfd_zoo.runs.locks import ClaimedRun, claim_new_run, claim_run
 from sgfd_zoo.runs.resuming import choose_checkpoint, envs_as_trained, load_checkpoint, prepare_restart, run_to_resume
 from sgfd_zoo.runs.safe import refuse_links
 from sgfd_zoo.runs.training_state import RestoreTrainingState
+from sgfd_zoo.vec_wrappers import wrap_like_training
 
 # Errors of a write that a full disk (or quota, or file size limit) causes.
 NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
@@ -65,35 +65,31 @@ class SGFDExperimentManager(ExperimentManager):
 
     - hyperparameters from ``sgfd_zoo/hyperparams/<algo>.yml`` unless ``-conf`` names another file;
     - the training VecEnv has one sub-env per training domain (``n_envs`` defaults to their number);
-    - evaluation envs get the same env kwargs as training (rl-zoo3 drops yaml ``env_kwargs`` there), and evaluation
-      covers every split: training domains and the unseen ones;
-    - one run, one folder, one writer: a new run claims its folder before anything is built (runs started together each
-      get their own), and the run's lock is held while it trains (:mod:`sgfd_zoo.runs.locks`);
-    - checkpoints (model + replay buffer) every ``save_freq`` steps, each file written whole and checked
-      (:class:`~sgfd_zoo.runs.checkpoint_callback.ResumableCheckpointCallback`); ``resume=True`` continues the newest
-      run of this algo and env, on the envs it trained on, from its newest checkpoint that verifies, the one before when
-      the newest does not;
-    - Ctrl-C (or SIGTERM) stops training at a checkpoint and a full disk stops it cleanly: a :class:`TrainingStopped`
-      says how to continue, and the run is not finished; the final model is followed by ``finished.json``;
-    - a progress bar by default when the output is a terminal, and progress reports to ``progress_reporter``;
-    - a policy that cannot read the observations, and unknown keys in the kwargs hyperparameters (policy, features
-      extractor, representation, replay buffer), are refused in one line, naming what fits, before anything is built.
+    - evaluation envs get the same env kwargs as training (rl-zoo3 drops yaml ``env_kwargs`` there),
+      and evaluation covers every split: training domains and the unseen ones;
+    - one run, one folder, one writer: a new run claims its folder before anything is built (runs started
+      together each get their own), and the run's lock is held while it trains (:mod:`sgfd_zoo.runs.locks`);
+    - checkpoints (model + replay buffer) every ``save_freq`` steps, each file written whole and checked; ``resume``
+      continues the newest run, on the envs it trained on, from its newest checkpoint that verifies (the one before
+      when the newest does not);
+    - Ctrl-C (or SIGTERM) stops training at a checkpoint, a full disk cleanly (a :class:`TrainingStopped` says how
+      to continue); the final model is followed by ``finished.json``;
+    - a progress bar by default on a terminal, progress reports to ``progress_reporter``, rl-zoo3's monitor files;
+    - a policy that cannot read the observations, and unknown keys in the kwargs hyperparameters, are refused
+      in one line, naming what fits, before anything is built.
 
     Takes rl-zoo3's arguments, plus:
 
-    :param quick: Use the quick configuration (``sgfd_zoo/hyperparams/quick``) when no ``-conf`` is given
-    :param resume: Continue the newest run from its last checkpoint instead of starting a new one
-    :param progress: Show a progress bar; None: when stdout is a terminal
-    :param run_id: Write to (and resume) the run folder ``<EnvName>_<run_id>``; None: a new folder, claimed
-    :param progress_reporter: Called every few seconds with a dict of the run's progress (``sgfd-zoo sweep``)
-    :param check_only: Only check the configuration: ``setup_experiment`` builds the model on the env with a tiny replay
-        buffer, writes nothing and returns no model
-    :param command: The ``sgfd-zoo train`` flags of this run, to print the command that continues it
-    :param default_save_freq: No ``--save-freq`` was given: checkpoint every :func:`default_checkpoint_interval` steps
-        of this run
-    :param default_eval_freq: No ``--eval-freq`` was given: no warning when rl-zoo3's default is longer than the run
-    :param classifier_start: ``classifier_start`` of an SGFD algorithm (``--classifier-start``); the others have no
-        classifier and ignore it, so that a sweep may mix them
+    :param quick: the quick configuration (``sgfd_zoo/hyperparams/quick``) when no ``-conf`` is given
+    :param resume: continue the newest run from its last checkpoint
+    :param progress: a progress bar; None: when stdout is a terminal
+    :param run_id: write to (and resume) ``<EnvName>_<run_id>``; None: a new folder, claimed
+    :param progress_reporter: called every few seconds with the run's progress (``sgfd-zoo sweep``)
+    :param check_only: ``setup_experiment`` builds the model with a tiny buffer, writes nothing, returns no model
+    :param command: the ``sgfd-zoo train`` flags of this run, to print the command that continues it
+    :param default_save_freq: no ``--save-freq``: checkpoint every :func:`default_checkpoint_interval` steps
+    :param default_eval_freq: no ``--eval-freq``: no warning when rl-zoo3's default is longer than the run
+    :param classifier_start: the SGFD algorithms' ``classifier_start``; the others ignore it (a sweep may mix them)
     """
 
     def __init__(
@@ -217,10 +213,13 @@ class SGFDExperimentManager(ExperimentManager):
     # -- environments ----------------------------------------------------------------------------
 
     def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> VecEnv:
-        # rl-zoo3 asks for an eval env only on its Optuna path: score trials on every training domain.
-        return self.create_split_env("train", n_envs=None if eval_env else n_envs, eval_env=eval_env)
+        # Optuna's trials ask for an eval env (scored on every training domain); a run's own log monitor files.
+        monitor_dir = None if eval_env or no_log or self.check_only else self.save_path
+        return self.create_split_env("train", None if eval_env else n_envs, eval_env, monitor_dir)
 
-    def create_split_env(self, split: str, n_envs: int | None = None, eval_env: bool = True) -> VecEnv:
+    def create_split_env(
+        self, split: str, n_envs: int | None = None, eval_env: bool = True, monitor_dir: str | None = None
+    ) -> VecEnv:
         """A VecEnv over the domains of ``split``, wrapped the way training wraps it (frame stack, transpose)."""
         env_kwargs = self.eval_env_kwargs if eval_env else self.env_kwargs
         with env_kwargs_checked(env_kwargs):
@@ -230,6 +229,7 @@ class SGFDExperimentManager(ExperimentManager):
                 n_envs=n_envs,
                 seed=self.seed + (10_000 if eval_env else 0),
                 vec_env_cls=cast(type[DummyVecEnv] | type[SubprocVecEnv], self.vec_env_class),
+                monitor_dir=monitor_dir,
                 **env_kwargs,
             )
         return wrap_like_training(env, self.frame_stack, self._maybe_normalize if self.normalize else None, eval_env)
@@ -285,11 +285,12 @@ class SGFDExperimentManager(ExperimentManager):
         hyperparams, self.env_wrapper, self.callbacks, self.vec_env_wrapper = self._preprocess_hyperparams(unprocessed)
         self._claim_run_folder()
         # Once the run is sure to start: a configuration or folder that is refused gets its one line only.
-        too_short = classifier_start_warning(self.algo, hyperparams, self.n_timesteps)
-        if too_short is not None:
+        if (too_short := classifier_start_warning(self.algo, hyperparams, self.n_timesteps)) is not None:
             print(f"warning: {too_short}", file=sys.stderr)
         if self.continue_training:
             return super().setup_experiment()
+        if self.checkpoint is None:
+            self._forget_monitor_files()
         env = self.create_envs(self.n_envs)
         self._hyperparams = self._preprocess_action_noise(hyperparams, saved_hyperparams, env)
         if self.checkpoint is None:
@@ -332,6 +333,11 @@ class SGFDExperimentManager(ExperimentManager):
         elif self.run_id is not None:
             prepare_restart(run, self.train_command(resume=True))
 
+    def _forget_monitor_files(self) -> None:
+        """A run that starts from step 0 logs its episodes afresh (a resumed one continues its monitor files)."""
+        for path in Path(self.save_path).glob("*.monitor.csv"):
+            path.unlink()
+
     def release_run_folder(self) -> None:
         """Give the run's lock back; a folder claimed for a run that wrote nothing goes too."""
         if self.claimed is not None:
@@ -373,6 +379,7 @@ class SGFDExperimentManager(ExperimentManager):
             )
         except (TypeError, ValueError) as error:
             env.close()
+            self._forget_monitor_files()  # the run has not started: its folder goes again
             raise ZooError(
                 f"{self.algo} on {self.env_name.gym_id} cannot be built from this configuration: "
                 f"{type(error).__name__}: {first_line(error)}"

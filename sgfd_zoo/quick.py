@@ -11,7 +11,6 @@ adds what is missing (e.g. more --seeds).
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import os
@@ -23,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from sgfd_zoo.algos import SGFD_ALGOS, hyperparams_entry, is_sgfd
-from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id
+from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_at_least, check_env_id
 
 DEFAULT_ENV = "SGFD/MT-walker-walk-v0"
 DEFAULT_ALGOS = ("sgfd_sac", "sac")  # SGFD and its Domain Randomisation baseline
@@ -85,7 +84,7 @@ def check_run_lengths(folder: Path, algos: Sequence[str], env_id: str, n_timeste
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="sgfd-zoo quick", description=__doc__.replace("``", "`"))
+    parser = ZooArgumentParser(prog="sgfd-zoo quick", description=__doc__)
     parser.add_argument("--env", default=DEFAULT_ENV, help="a registered id (sgfd_envs.ENV_IDS)")
     parser.add_argument(
         "--algos",

@@ -41,7 +41,7 @@ import numpy as np
 import yaml
 
 from sgfd_zoo.algos import SGFD_ALGOS, algo_sort_key, column_name
-from sgfd_zoo.arguments import ZooError, check_at_least, checked_names, has_flag, printable
+from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_at_least, checked_names, has_flag, printable
 from sgfd_zoo.report import evaluate
 from sgfd_zoo.report.markdown import markdown_text
 from sgfd_zoo.report.statistics import write_statistics
@@ -402,7 +402,7 @@ def plan_lines(spec: dict[str, Any], out: Path, gpus: int, gpus_per_run: float |
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(
+    parser = ZooArgumentParser(
         prog="sgfd-zoo study", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("spec", type=Path, help="the study's spec.yml; results go to its folder")

@@ -1,7 +1,14 @@
 """Shared pytest setup."""
 
+import os
+
 import pytest
 import torch
+
+# The tests' Ray instances are local: Ray binds them to loopback when multi-node clusters are off, a switch it reads
+# when it is imported. `sgfd-zoo sweep` sets it itself before it imports Ray; test modules import Ray first.
+# (test_a_local_sweeps_ray_listens_on_loopback_only checks the zoo's own setting, in a process without this one.)
+os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
 
 # sgfd_envs picks MuJoCo's headless OpenGL backend (EGL) unless MUJOCO_GL is set; that must happen
 # before any test module imports dm_control, so import it before collection.

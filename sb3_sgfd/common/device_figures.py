@@ -82,9 +82,10 @@ class DeviceFigures:
         """Remember the update at which ``value`` (0-d) is first not finite, as ``what``, without a host read."""
         if what not in self._checked:
             self._checked.append(what)
-        fresh = ~th.isfinite(value.detach()) & (self._first_bad < 0)
-        self._first_bad.copy_(th.where(fresh, self.update, self._first_bad))
-        self._bad_what.copy_(th.where(fresh, self._checked.index(what), self._bad_what))
+        with th.no_grad():
+            fresh = th.isfinite(value).logical_not_().logical_and_(self._first_bad < 0)
+            self._first_bad.masked_fill_(fresh, self.update)
+            self._bad_what.masked_fill_(fresh, self._checked.index(what))
 
     def end_update(self) -> None:
         """The step is done: the next one has the next index."""

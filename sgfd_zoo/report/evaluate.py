@@ -6,7 +6,6 @@ benchmark's data (no ``data_dir``/``background_dir`` in the run's env kwargs) is
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
 import time
@@ -20,7 +19,7 @@ from pytablewriter import MarkdownTableWriter
 import sgfd_envs
 from sgfd_envs.registry import BENCHMARK_KINDS, benchmark_of
 from sgfd_zoo.algos import algo_sort_key, column_name
-from sgfd_zoo.arguments import ZooError, check_at_least, check_env_id, printable, train_command
+from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_at_least, check_env_id, printable, train_command
 from sgfd_zoo.report.markdown import markdown_text
 from sgfd_zoo.report.statistics import (
     MAX_RETURN,
@@ -51,7 +50,7 @@ def evaluate_run(run: RunFolder, n_episodes: int, seed: int = 0) -> list[dict[st
     """
     from stable_baselines3.common.evaluation import evaluate_policy
 
-    from sgfd_zoo.experiment import wrap_like_training
+    from sgfd_zoo.vec_wrappers import wrap_like_training
 
     modes = sgfd_envs.evaluation_modes(run.env_id)
     key = {
@@ -327,7 +326,7 @@ def _files_now(folder: Path) -> set[Path]:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="sgfd-zoo evaluate", description=__doc__)
+    parser = ZooArgumentParser(prog="sgfd-zoo evaluate", description=__doc__)
     parser.add_argument("-f", "--folder", required=True, type=Path, help="log folder of sgfd-zoo train")
     parser.add_argument("--algo", nargs="+", help="only these algorithm keys")
     parser.add_argument("--env", nargs="+", help="only these env ids")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 from collections import defaultdict
 from pathlib import Path
 
@@ -11,7 +10,7 @@ from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global fig
 
 import sgfd_envs
 from sgfd_zoo.algos import algo_sort_key, column_name
-from sgfd_zoo.arguments import ZooError
+from sgfd_zoo.arguments import ZooArgumentParser, ZooError
 from sgfd_zoo.runs.folders import env_name, find_runs
 from sgfd_zoo.runs.safe import make_folder, save_figure
 
@@ -86,7 +85,7 @@ def plot_env(env_id: str, curves: dict[str, dict[str, list[Curve]]], out: Path, 
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="sgfd-zoo plot", description=__doc__)
+    parser = ZooArgumentParser(prog="sgfd-zoo plot", description=__doc__)
     parser.add_argument("-f", "--folder", required=True, type=Path, help="log folder of sgfd-zoo train")
     parser.add_argument("-o", "--out", type=Path, help="output folder (default: <folder>/plots)")
     args = parser.parse_args(argv)

@@ -36,7 +36,15 @@ from pathlib import Path
 import sgfd_envs  # before anything imports dm_control: it picks MuJoCo's headless GL backend
 from sgfd_zoo import training
 from sgfd_zoo.algos import SGFD_ALGOS
-from sgfd_zoo.arguments import ZooError, check_log_folder, checked_names, flag_value, has_flag, printable
+from sgfd_zoo.arguments import (
+    ZooArgumentParser,
+    ZooError,
+    check_log_folder,
+    checked_names,
+    flag_value,
+    has_flag,
+    printable,
+)
 from sgfd_zoo.exit_codes import INTERRUPTED
 from sgfd_zoo.report import evaluate
 from sgfd_zoo.runs.folders import find_runs
@@ -62,12 +70,10 @@ MAX_SEED = 2**32 - 1  # numpy's limit, which rl-zoo3 seeds with
 
 def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
     """The sweep's options, checked, and the flags left for ``sgfd-zoo train``."""
-    parser = argparse.ArgumentParser(
+    parser = ZooArgumentParser(
         prog="sgfd-zoo sweep",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        # An abbreviation such as --algo must reach the check below, not silently mean --algos.
-        allow_abbrev=False,
         epilog="Every other option goes to each run's `sgfd-zoo train` (see sgfd-zoo train -h), e.g.\n"
         "  sgfd-zoo sweep --algos sgfd_sac sac --envs SGFD/MT-walker-walk-v0 --seeds 0 1 2 --quick -n 20000",
     )

@@ -150,6 +150,7 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
     Ray is shut down after. Ctrl-C stops the running runs at a checkpoint each, then raises
     KeyboardInterrupt; a second Ctrl-C stops them at once. A cluster that stops answering raises
     :class:`ClusterLost`."""
+    prepare_ray_environment(args)  # before Ray is imported: it reads these variables when it is
     import ray
 
     start_ray(args)
@@ -293,8 +294,42 @@ def _stop_at_checkpoints(pending: dict[Any, Job], view: LiveView) -> None:
 # -- connecting -------------------------------------------------------------------------------------
 
 
+#: Ray's documented switch of multi-node clusters (read when Ray is imported): "0" makes a node take the loopback
+#: address as its own, as Ray does on macOS and Windows, so that its GCS, raylet and workers listen on loopback only.
+CLUSTERS_VARIABLE = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+#: Ray's documented token authentication: its mode, and where the token is looked for (highest precedence first)
+AUTH_MODE_VARIABLE, TOKEN_VARIABLE, TOKEN_PATH_VARIABLE = "RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH"
+
+
+def prepare_ray_environment(args: argparse.Namespace) -> None:
+    """Ray's environment variables for this sweep, set before Ray is imported (it reads them then), each left as
+    the user set it:
+
+    - a local instance (no ``--address``): multi-node clusters off, so that it binds to loopback (on Linux Ray would
+      otherwise replace 127.0.0.1 by the machine's reachable address, and listen on every interface);
+    - a cluster: token authentication when this machine has a token (what ``ray start`` does itself when it finds
+      one; a token sent to a cluster without authentication is ignored).
+    """
+    if args.address is None:
+        os.environ.setdefault(CLUSTERS_VARIABLE, "0")
+    elif AUTH_MODE_VARIABLE not in os.environ and has_ray_token():
+        os.environ[AUTH_MODE_VARIABLE] = "token"
+
+
+def has_ray_token() -> bool:
+    """Whether this machine has a Ray token where Ray looks: ``RAY_AUTH_TOKEN``, the file ``RAY_AUTH_TOKEN_PATH``
+    names, or ``~/.ray/auth_token``."""
+    if os.environ.get(TOKEN_VARIABLE):
+        return True
+    path = os.environ.get(TOKEN_PATH_VARIABLE)
+    return Path(path).is_file() if path else (Path.home() / ".ray" / "auth_token").is_file()
+
+
 def start_ray(args: argparse.Namespace) -> None:
-    """``ray.init``: on the cluster ``args.address`` names, else a new local instance sized by ``args``."""
+    """``ray.init``: on the cluster ``args.address`` names, else a new local instance sized by ``args``, bound to
+    loopback (:func:`prepare_ray_environment`, which must run before Ray is imported: a local instance that does
+    not bind to loopback is refused in one line)."""
+    prepare_ray_environment(args)
     import ray
 
     # Each run's output is in its log file; Ray's own warnings (token authentication, ...) only when asked for.
@@ -308,14 +343,14 @@ def start_ray(args: argparse.Namespace) -> None:
         print(f"sweep: Ray cluster at {args.address}: {cpus:g} CPUs, {gpus:g} GPUs")
         return
     # "local": a new instance even if `ray start` left one running on this machine (or RAY_ADDRESS names one).
-    with _loopback_only():
-        ray.init(address="local", num_cpus=args.num_cpus, include_dashboard=False, _node_ip_address=LOOPBACK, **quiet)
+    ray.init(address="local", num_cpus=args.num_cpus, include_dashboard=False, **quiet)
     listening = ray.nodes()[0]["NodeManagerAddress"]
     if listening != LOOPBACK:
         ray.shutdown()
         raise ZooError(
             f"the local Ray instance took the address {listening}, not {LOOPBACK}: its processes would listen on "
-            "every interface; start a cluster as you need it (ray start) and give it with --address"
+            f"every interface (set {CLUSTERS_VARIABLE}=0 before Ray is imported, as sgfd-zoo does when it imports "
+            "Ray itself); or start a cluster as you need it (ray start) and give it with --address"
         )
     cpus, gpus = ray.cluster_resources().get("CPU", 0), ray.cluster_resources().get("GPU", 0)
     if args.ray_logs:
@@ -329,46 +364,23 @@ def start_ray(args: argparse.Namespace) -> None:
 LOOPBACK = "127.0.0.1"
 
 
-@contextlib.contextmanager
-def _loopback_only() -> Iterator[None]:
-    """While a local instance starts: Ray takes 127.0.0.1 as its node's address, as it does on macOS and Windows.
-
-    A node whose address is 127.0.0.1 binds its GCS, raylet and workers to loopback only; on Linux ``ray.init``
-    otherwise replaces that address by the machine's reachable one (``services.resolve_ip_for_localhost``), and
-    they listen on every interface. Nothing outside this machine needs them in a local sweep.
-    """
-    from ray._private import ray_constants
-
-    saved = ray_constants.ENABLE_RAY_CLUSTER
-    ray_constants.ENABLE_RAY_CLUSTER = False
-    try:
-        yield
-    finally:
-        ray_constants.ENABLE_RAY_CLUSTER = saved
-
-
 def _connect(address: str, quiet: dict[str, Any], show_ray_output: bool) -> None:
     """``ray.init(address=...)``, with Ray's token authentication when this machine has a token (a token sent to
     a cluster without authentication is ignored), and a failure as one line: authentication named as such,
     with its fix. Ray's own retries print a line a second to stderr: kept out of sight unless asked for."""
     import ray
-    from ray._private.authentication.authentication_token_setup import maybe_enable_token_auth_if_token_available
-    from ray._raylet import AuthenticationTokenLoader  # type: ignore[attr-defined]
 
     _check_reachable(address)
     with tempfile.TemporaryFile("w+") as captured:
         try:
             with _stderr_to(None if show_ray_output else captured):
-                # What `ray start` does, and ray.init for a cluster it finds itself (not for an address it is
-                # given): token authentication where RAY_AUTH_MODE is unset and this machine has a token.
-                maybe_enable_token_auth_if_token_available(warn_if_disabled=False)
                 ray.init(address=address, **quiet)
             return
         except (ConnectionError, ValueError, RuntimeError, ray.exceptions.RayError) as error:
             captured.seek(0)
             said, reason = f"{error} {captured.read()}", first_line(error)
     if "AuthToken" in said or "Unauthenticated" in said or "authentication" in said.lower():
-        has_token = AuthenticationTokenLoader.instance().has_token(ignore_auth_mode=True)
+        has_token = has_ray_token()
         raise ZooError(
             f"--address {address}: the Ray cluster requires token authentication and "
             + ("refused this machine's token" if has_token else "this machine has no token")

@@ -11,8 +11,8 @@ import pytest
 
 import sgfd_envs
 from sgfd_analysis import correlation
+from sgfd_cli import main as zoo_main
 from sgfd_zoo.arguments import ZooError
-from sgfd_zoo.cli import main as zoo_main
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 # Reduced but honest: all four training domains, 8 batches of 128 instead of 31, the defaults otherwise.

@@ -16,11 +16,11 @@ from huggingface_sb3 import EnvironmentName
 import sgfd_envs
 from sb3_sgfd import SGFD_SAC
 from sgfd_analysis import figures
+from sgfd_cli import main as zoo_main
 from sgfd_envs.families import family_kwargs
-from sgfd_zoo.cli import main as zoo_main
-from sgfd_zoo.experiment import wrap_like_training
 from sgfd_zoo.report.plot import mean_and_band
 from sgfd_zoo.runs.folders import RunFolder, find_runs, select_run
+from sgfd_zoo.vec_wrappers import wrap_like_training
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
 ENV_NAME = str(EnvironmentName(ENV_ID))

@@ -97,7 +97,7 @@ def test_same_seed_same_states(causal_world):
 
 
 def test_correlation_study_runs_on_causal_world(causal_world, tmp_path, capsys):
-    from sgfd_zoo.cli import main as zoo_main
+    from sgfd_cli import main as zoo_main
 
     out = tmp_path / "cw"
     assert (

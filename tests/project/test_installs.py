@@ -107,7 +107,7 @@ def test_the_agents_import_without_the_zoo() -> None:
 
 
 def test_a_zoo_command_without_the_zoo_installed_names_the_install_in_one_line() -> None:
-    code = "from sgfd_zoo.cli import main; sys.exit(main(sys.argv[1:]))"
+    code = "from sgfd_cli import main; sys.exit(main(sys.argv[1:]))"
     result = run_without({"rl_zoo3", "ray"}, code, "train", "--algo", "sac", "--env", "SGFD/MT-walker-walk-v0")
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()

@@ -9,14 +9,18 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-PACKAGES = ("sb3_sgfd", "sgfd_envs", "sgfd_zoo", "sgfd_analysis")
+PACKAGES = ("sb3_sgfd", "sgfd_envs", "sgfd_zoo", "sgfd_analysis", "sgfd_cli")
 #: The floors, lowest first: a module imports from its own floor and those below. The figures (sgfd_analysis) are
-#: drawn from the zoo's runs; the ``sgfd-zoo`` command dispatches to every command, the figures' included.
-FLOORS = (("sgfd_envs",), ("sb3_sgfd",), ("sgfd_zoo",), ("sgfd_analysis",), ("sgfd_zoo.cli", "sgfd_zoo.__main__"))
+#: drawn from the zoo's runs; the ``sgfd-zoo`` command (sgfd_cli) dispatches to every command, the figures' included,
+#: so it stands above both packages: no module of a package imports from a floor above its package's.
+FLOORS = (("sgfd_envs",), ("sb3_sgfd",), ("sgfd_zoo",), ("sgfd_analysis",), ("sgfd_cli",))
 #: Modules that import project modules by a name they compute, and the table (a literal dict, its values the
 #: modules) those names come from: the graph takes them from the table. None today: every import is one the graph
 #: sees (the old paths of saved files are plain modules that re-export, e.g. sb3_sgfd.policies).
 COMPUTED_IMPORTS: dict[str, str] = {}
+#: Functions that import by a string the modules a user names (``--gym-packages``: their own env packages, as
+#: rl-zoo3's scripts import them), by module: nothing of the project's is imported there.
+USER_NAMED_IMPORTS = {"sgfd_zoo.arguments": "import_gym_packages"}
 
 
 def all_imports(node: ast.AST) -> set[str]:
@@ -113,6 +117,10 @@ def test_a_project_module_imported_by_a_string_is_refused():
         for name, tree in parsed_modules().items()
         if name not in COMPUTED_IMPORTS
     }
+    for name, function in USER_NAMED_IMPORTS.items():
+        (user_named,) = [node for node in ast.walk(parsed_modules()[name]) if getattr(node, "name", "") == function]
+        assert len(string_imports(user_named)) == len(found[name]) == 1  # that function's, and nothing else
+        del found[name]
     assert not {name: arguments for name, arguments in found.items() if arguments}
 
 
@@ -129,9 +137,9 @@ def test_each_module_imports_from_its_floor_and_below():
     graph = module_imports()
     upward = sorted(f"{name} -> {dep}" for name, deps in graph.items() for dep in deps if floor(dep) > floor(name))
     assert not upward, upward
-    assert floor("sgfd_zoo.cli") > floor("sgfd_analysis.figures") > floor("sgfd_zoo.runs.folders")
-    # the command's reach into the figures is an import the graph sees
-    assert {"sgfd_analysis.figures", "sgfd_analysis.correlation"} <= graph["sgfd_zoo.cli"]
+    assert floor("sgfd_cli.commands") > floor("sgfd_analysis.figures") > floor("sgfd_zoo.runs.folders")
+    # the command's reach into the figures and the zoo is an import the graph sees
+    assert {"sgfd_analysis.figures", "sgfd_analysis.correlation", "sgfd_zoo.training"} <= graph["sgfd_cli.commands"]
 
 
 def test_no_import_cycle_between_modules():
@@ -159,7 +167,7 @@ def test_no_import_cycle_between_modules():
 #: checks and the keys, the report wing, the run folders, records, files, checkpoints, locks and provenance, the
 #: sweep's plan and progress board
 REPORTING = [
-    "sgfd_zoo.cli",
+    "sgfd_cli.commands",
     "sgfd_zoo.arguments",
     "sgfd_zoo.algos",
     "sgfd_zoo.report.evaluate",
@@ -245,3 +253,28 @@ def test_common_knows_no_algorithm():
         modules = {name for name in names if any(f"{folder}." in f"{name}." for folder in folders)}
         named += [f"{path.relative_to(REPO)}: {name}" for name in sorted((names & algorithm_names) | modules)]
     assert not named, named
+
+
+def _private_module(module: str) -> bool:
+    """Whether ``module`` is a private module of another package (a part of its path begins with ``_``)."""
+    return module.split(".")[0] not in PACKAGES and any(part.startswith("_") for part in module.split(".")[1:])
+
+
+def test_no_module_reaches_into_another_packages_internals() -> None:
+    """Other packages through their public names only: no private module (``ray._private``, ``ray._raylet``), no
+    ``sys.argv`` rewritten for another package's parser, no attribute of another package's module replaced."""
+    others = {"rl_zoo3", "ray", "stable_baselines3", "sb3_contrib", "gymnasium"}
+    reached = []
+    for name, tree in parsed_modules().items():
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                modules = [node.module, *(f"{node.module}.{alias.name}" for alias in node.names)]
+                reached += [f"{name} imports {module}" for module in modules if _private_module(module)]
+            elif isinstance(node, ast.Import):
+                reached += [f"{name} imports {a.name}" for a in node.names if _private_module(a.name)]
+            elif isinstance(node, ast.Assign) and "sys.argv" in map(ast.unparse, node.targets):
+                reached.append(f"{name} sets sys.argv")
+            elif isinstance(node, ast.Call) and ast.unparse(node.func) == "setattr" and node.args:
+                owner = ast.unparse(node.args[0])
+                reached += [f"{name} replaces an attribute of {owner}"] if owner.split(".")[0] in others else []
+    assert not reached, reached

@@ -38,7 +38,7 @@ def test_make_install_and_test_run_the_readmes_test_commands() -> None:
 def test_make_ci_runs_every_gate_then_the_tests() -> None:
     commands = planned("ci")
     assert commands[:3] == ["python -m ruff check .", "python -m ruff format --check .", planned("type")[0]]
-    assert planned("type")[0] == "python -m mypy sb3_sgfd sgfd_envs sgfd_zoo sgfd_analysis"
+    assert planned("type")[0] == "python -m mypy sb3_sgfd sgfd_envs sgfd_zoo sgfd_analysis sgfd_cli"
     assert commands[3].startswith("python -m mkdocs build --strict --site-dir ")
     assert commands[4:] == ["python -m pytest"]
 

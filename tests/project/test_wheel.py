@@ -30,7 +30,7 @@ def test_the_wheels_installed_in_a_fresh_environment_run_the_quick_job(tmp_path:
     names = set(zipfile.ZipFile(wheel).namelist())
     shipped = {str(path.relative_to(REPO)) for path in (REPO / "sgfd_zoo" / "hyperparams").rglob("*.yml")}
     assert shipped and shipped <= names, sorted(shipped - names)
-    assert {"sgfd_analysis/correlation.py", "sgfd_zoo/cli.py", "sb3_sgfd/common/encoder_sac.py"} <= names
+    assert {"sgfd_analysis/correlation.py", "sgfd_cli/commands.py", "sb3_sgfd/common/encoder_sac.py"} <= names
     assert "sb3_sgfd/py.typed" in names and not any(n.startswith("sgfd_envs/") for n in names)
     envs_names = set(zipfile.ZipFile(envs_wheel).namelist())
     assert {"sgfd_envs/__init__.py", "sgfd_envs/benchmarks/dcs.py", "sgfd_envs/domains/walker.py"} <= envs_names

@@ -13,7 +13,7 @@ from typing import Any
 
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
-from sgfd_zoo.cli import main
+from sgfd_cli import main
 
 
 def stall_at(step: int, marker: Path) -> None:

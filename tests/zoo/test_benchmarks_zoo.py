@@ -74,7 +74,7 @@ def test_paper_scale_models_build_on_the_benchmark_ids(agent, env_id, tmp_path):
 
 
 def zoo(*args):
-    result = subprocess.run([sys.executable, "-m", "sgfd_zoo.cli", *args], capture_output=True, text=True, timeout=900)
+    result = subprocess.run([sys.executable, "-m", "sgfd_cli", *args], capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, f"sgfd-zoo {' '.join(args)}:\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
     return result
 

@@ -40,8 +40,8 @@ import stable_baselines3.common.off_policy_algorithm
 from stable_baselines3.common.save_util import load_from_pkl
 
 import sgfd_envs.dmc
+from sgfd_cli import main as zoo_main
 from sgfd_zoo import training
-from sgfd_zoo.cli import main as zoo_main
 from sgfd_zoo.runs.checkpoints import read_index, remove_checkpoint_files
 from sgfd_zoo.runs.folders import FINISHED_MARKER, RunFolder
 from sgfd_zoo.runs.locks import LOCK_FILE, RunLock

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from sgfd_zoo import cli
+import sgfd_cli as cli
 from sgfd_zoo.arguments import ZooError
 from sgfd_zoo.sweep import cost
 from sgfd_zoo.sweep.plan import MAX_RUNS_PER_GPU, packing, run_resources
@@ -104,7 +104,7 @@ def plan_output(spec: str, *flags: str) -> str:
     """``sgfd-zoo study studies/<spec>/spec.yml --plan`` in a fresh interpreter, which must import neither torch nor
     Ray (a plan builds and trains nothing)."""
     check = (
-        "import sys; from sgfd_zoo import cli; code = cli.main(sys.argv[1:]); "
+        "import sys; import sgfd_cli as cli; code = cli.main(sys.argv[1:]); "
         "assert not {'torch', 'ray'} & set(sys.modules), 'a plan imported the training stack'; sys.exit(code)"
     )
     argv = ["study", f"studies/{spec}/spec.yml", "--plan", *flags]

@@ -15,10 +15,10 @@ from pathlib import Path
 import pytest
 import yaml
 
+from sgfd_cli import main as zoo_main
 from sgfd_zoo import algos, quick
 from sgfd_zoo.algos import classifier_start_warning
 from sgfd_zoo.arguments import ZooError
-from sgfd_zoo.cli import main as zoo_main
 from sgfd_zoo.report.plot import draw_env, load_curves
 from sgfd_zoo.runs.folders import FINISHED_MARKER, RunFolder
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sgfd_zoo.cli import main as zoo_main
+from sgfd_cli import main as zoo_main
 from sgfd_zoo.runs import provenance
 
 pytestmark = pytest.mark.ray

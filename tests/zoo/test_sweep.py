@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import json
 import os
 import re
 import shlex
@@ -24,7 +25,7 @@ import pytest
 import ray
 import yaml
 
-from sgfd_zoo import cli
+import sgfd_cli as cli
 from sgfd_zoo.runs.checkpoints import Checkpoint, read_index, write_index
 from sgfd_zoo.runs.files import atomic_write
 from sgfd_zoo.runs.folders import RunFolder, find_runs, mark_finished
@@ -297,7 +298,7 @@ def test_sweep_on_an_existing_cluster_skips_finished_runs_and_resumes_a_crashed_
     argv = ["sweep", "--algos", "sgfd_sac", "--envs", ENV, "--seeds", "0", "1", "-f", str(folder)]
     argv += ["--address", ray_cluster, "--no-evaluate", *TINY, "-n", "900"]  # the resumed run goes on to 900
     result = subprocess.run(
-        [sys.executable, "-m", "sgfd_zoo.cli", *argv],
+        [sys.executable, "-m", "sgfd_cli", *argv],
         capture_output=True,
         text=True,
         timeout=600,
@@ -326,7 +327,7 @@ def test_a_sweep_on_a_gpu_node_packs_its_runs_by_the_rule(tmp_path: Path) -> Non
         argv = ["sweep", "--algos", "sac", "--envs", ENV, "--seeds", "0", "-f", str(tmp_path / "logs")]
         argv += ["--address", ray.get_runtime_context().gcs_address, "--no-evaluate", *TINY]
         result = subprocess.run(
-            [sys.executable, "-m", "sgfd_zoo.cli", *argv], capture_output=True, text=True, timeout=600, cwd=tmp_path
+            [sys.executable, "-m", "sgfd_cli", *argv], capture_output=True, text=True, timeout=600, cwd=tmp_path
         )
     finally:
         ray.shutdown()
@@ -349,7 +350,7 @@ def test_ctrl_c_stops_each_running_run_at_a_checkpoint_that_the_same_command_res
         # own processes alike. Its SIGINT is a terminal's too: a test run started in the background (nohup, &)
         # ignores SIGINT, and a Python started ignoring it never raises KeyboardInterrupt.
         sweep_process = subprocess.Popen(
-            [sys.executable, "-m", "sgfd_zoo.cli", *argv],
+            [sys.executable, "-m", "sgfd_cli", *argv],
             stdout=out,
             stderr=subprocess.STDOUT,
             start_new_session=True,
@@ -459,7 +460,7 @@ def test_sweep_attaches_to_a_ray_start_cluster_with_token_authentication(tmp_pat
     head, elsewhere, logs = tmp_path / "head", tmp_path / "elsewhere", tmp_path / "logs"
     elsewhere.mkdir()
     with ray_start_cluster(head, token=True) as (address, _temp):
-        argv = [sys.executable, "-m", "sgfd_zoo.cli", "sweep", "--algos", "sac", "--envs", ENV, "--seeds", "0"]
+        argv = [sys.executable, "-m", "sgfd_cli", "sweep", "--algos", "sac", "--envs", ENV, "--seeds", "0"]
         argv += ["-f", str(logs), "--address", address, "--no-evaluate", *TINY]
         # A machine without the cluster's token: one line naming authentication and what to do.
         refused = subprocess.run(argv, env=_sweep_env(elsewhere), capture_output=True, text=True, timeout=300)
@@ -479,23 +480,35 @@ def test_sweep_attaches_to_a_ray_start_cluster_with_token_authentication(tmp_pat
     assert command[command.index("--run-id") + 1] == "1" and "default_worker" not in " ".join(command)
 
 
+LISTENING = """
+import argparse, json, psutil
+from sgfd_zoo.sweep import ray_runs
+ray_runs.start_ray(argparse.Namespace(address=None, num_cpus=1, ray_logs=False, gpus_per_run=0.0))
+import ray  # as the sweep imports it: after its environment is set
+try:
+    assert ray.get(ray.remote(lambda: 1).remote()) == 1  # a worker process, listening too
+    nodes = [node["NodeManagerAddress"] for node in ray.nodes()]
+    processes = {process.pid: process.name() for process in psutil.Process().children(recursive=True)}
+    listening = [
+        (processes[connection.pid], connection.laddr.ip)
+        for connection in psutil.net_connections("inet")
+        if connection.status == psutil.CONN_LISTEN and connection.pid in processes
+    ]
+finally:
+    ray.shutdown()
+print(json.dumps({"nodes": nodes, "listening": listening}))
+"""
+
+
 def test_a_local_sweeps_ray_listens_on_loopback_only() -> None:
-    import argparse
-
-    import psutil
-
-    ray_runs.start_ray(argparse.Namespace(address=None, num_cpus=1, ray_logs=False, gpus_per_run=0.0))
-    try:
-        assert ray.get(ray.remote(lambda: 1).remote()) == 1  # a worker process, listening too
-        assert [node["NodeManagerAddress"] for node in ray.nodes()] == ["127.0.0.1"]
-        processes = {process.pid: process.name() for process in psutil.Process().children(recursive=True)}
-        listening = [
-            (processes[connection.pid], connection.laddr.ip)
-            for connection in psutil.net_connections("inet")
-            if connection.status == psutil.CONN_LISTEN and connection.pid in processes
-        ]
-    finally:
-        ray.shutdown()
+    # In a process of its own, as `sgfd-zoo sweep` runs, without the tests' setting (conftest.py): the zoo's own
+    # environment for Ray, set before Ray is imported, binds the instance to loopback.
+    env = {key: value for key, value in os.environ.items() if key != ray_runs.CLUSTERS_VARIABLE}
+    result = subprocess.run([sys.executable, "-c", LISTENING], env=env, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    found = json.loads(result.stdout.strip().splitlines()[-1])
+    assert found["nodes"] == ["127.0.0.1"]
+    listening = found["listening"]
     assert {"gcs_server", "raylet"} <= {name for name, _ in listening}, listening
     assert all(ip in ("127.0.0.1", "::ffff:127.0.0.1", "::1") for _, ip in listening), listening
 
@@ -526,7 +539,7 @@ def test_a_sweep_whose_cluster_goes_away_exits_75_naming_it_with_where_each_run_
         argv += ["--no-evaluate", "--progress-interval", "1", *flags]
         with out_file.open("w") as out:
             process = subprocess.Popen(
-                [sys.executable, "-m", "sgfd_zoo.cli", *argv],
+                [sys.executable, "-m", "sgfd_cli", *argv],
                 stdout=out,
                 stderr=subprocess.STDOUT,
                 env=_sweep_env(home),

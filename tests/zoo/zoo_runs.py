@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from sgfd_zoo.cli import main as zoo_main
+from sgfd_cli import main as zoo_main
 from sgfd_zoo.runs.checkpoints import read_index
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
@@ -48,7 +48,7 @@ class Training:
         folder.mkdir(parents=True, exist_ok=True)
         self.out, self.err = folder / "stdout.txt", folder / "stderr.txt"
         with self.out.open("w") as out, self.err.open("w") as err:
-            self.process = subprocess.Popen([sys.executable, "-m", "sgfd_zoo.cli", *args], stdout=out, stderr=err)
+            self.process = subprocess.Popen([sys.executable, "-m", "sgfd_cli", *args], stdout=out, stderr=err)
 
     def wait_until(self, condition: Callable[[], bool], timeout: float = 300, poll: float = 0.005) -> None:
         deadline = time.monotonic() + timeout

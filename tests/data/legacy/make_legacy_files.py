@@ -82,8 +82,8 @@ def main(out: Path, names: list[str]) -> None:
         return
     # a zoo run killed after its first checkpoint, to be resumed by today's code
     logs = out / "train_folder"
-    # the zoo of the checkout this runs from (``zoo`` before the rename, ``sgfd_zoo`` after it)
-    zoo = "zoo.cli" if importlib.util.find_spec("zoo") is not None else "sgfd_zoo.cli"
+    # the zoo of the checkout this runs from (``zoo.cli`` before the rename, ``sgfd_cli`` now)
+    zoo = "zoo.cli" if importlib.util.find_spec("zoo") is not None else "sgfd_cli"
     command = [
         sys.executable,
         "-m",

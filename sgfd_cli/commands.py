@@ -2,8 +2,8 @@
 The ``sgfd-zoo`` command: a dispatcher over the zoo's commands and the paper's figures. Each command imports its
 module when it runs, so ``sgfd-zoo plot`` does not load rl-zoo3 or torch.
 
-The dispatcher is the top floor: it is the one module of sgfd_zoo that imports sgfd_analysis, whose figures are
-drawn from the zoo's runs (``tests/project/test_layers.py`` holds the floors).
+The dispatcher is the top floor, above both the zoo and the analysis package, whose figures are drawn from the
+zoo's runs (``tests/project/test_layers.py`` holds the floors).
 """
 
 from __future__ import annotations
@@ -29,9 +29,27 @@ def _optimize(argv: list[str]) -> int:
 
 
 def _enjoy(argv: list[str]) -> int:
-    from sgfd_zoo import training
+    from sgfd_zoo import enjoy
 
-    return training.enjoy(argv)
+    return enjoy.main(argv)
+
+
+def _record_video(argv: list[str]) -> int:
+    from sgfd_zoo import video
+
+    return video.main(argv)
+
+
+def _push_to_hub(argv: list[str]) -> int:
+    from sgfd_zoo.hub import push
+
+    return push.main(argv)
+
+
+def _load_from_hub(argv: list[str]) -> int:
+    from sgfd_zoo.hub import load
+
+    return load.main(argv)
 
 
 def _evaluate(argv: list[str]) -> int:
@@ -92,7 +110,10 @@ def _classifier_accuracy(argv: list[str]) -> int:
 COMMANDS: dict[str, tuple[Command, str]] = {
     "train": (_train, "train an agent (rl-zoo3's flags, plus --quick, --resume, --no-progress)"),
     "optimize": (_optimize, "tune hyperparameters with Optuna (rl-zoo3's flags, --storage)"),
-    "enjoy": (_enjoy, "watch or roll out a trained agent (rl-zoo3's flags)"),
+    "enjoy": (_enjoy, "watch or roll out a trained agent on any split and domain (rl-zoo3's flags)"),
+    "record-video": (_record_video, "an mp4 of a trained agent on any split and domain"),
+    "push-to-hub": (_push_to_hub, "a run to the Hugging Face Hub: model, settings, every split's evaluation, video"),
+    "load-from-hub": (_load_from_hub, "a run from the Hugging Face Hub (or a local copy) into a log folder"),
     "evaluate": (_evaluate, "every trained model of a log folder on every split: tables, statistics"),
     "plot": (_plot, "learning curves per split and algorithm from a log folder"),
     "quick": (_quick, "the main job: SGFD and SAC briefly, on several seeds; tables with intervals"),
@@ -114,10 +135,19 @@ COMMANDS: dict[str, tuple[Command, str]] = {
 }
 
 
-#: what the ``zoo`` extra installs beyond the agents (pyproject.toml), by import name
-ZOO_EXTRA_MODULES = frozenset(
-    ["rl_zoo3", "sb3_contrib", "optuna", "ray", "rliable", "matplotlib", "pandas", "yaml", "rich", "tqdm"]
-)
+#: what the optional extras install beyond the agents (pyproject.toml), by import name, and how to install them
+EXTRA_OF_MODULE = {
+    **dict.fromkeys(
+        ["rl_zoo3", "sb3_contrib", "optuna", "ray", "rliable", "matplotlib", "pandas", "yaml", "rich", "tqdm"],
+        "zoo",
+    ),
+    **dict.fromkeys(["huggingface_hub", "imageio_ffmpeg"], "zoo"),
+    **dict.fromkeys(["tensorboard", "wandb"], "track"),
+}
+INSTALLS = {
+    "zoo": "pip install -e ./sgfd_envs -e '.[zoo]' -c constraints.txt",
+    "track": "pip install -e '.[track]' -c constraints.txt",
+}
 
 
 def usage() -> str:
@@ -158,11 +188,13 @@ def run(command: str, argv: Sequence[str]) -> int:
         return error.exit_code
     except ModuleNotFoundError as error:
         missing = (error.name or "").partition(".")[0]
-        if missing not in ZOO_EXTRA_MODULES:
+        if missing not in EXTRA_OF_MODULE:
             raise
+        extra = EXTRA_OF_MODULE[missing]
+        which = "the zoo's install" if extra == "zoo" else f"the {extra} extra"
         print(
-            f"sgfd-zoo {command}: error: it needs {missing}, which the zoo's install brings: from the clone's root, "
-            "pip install -e ./sgfd_envs -e '.[zoo]' -c constraints.txt",
+            f"sgfd-zoo {command}: error: it needs {missing}, which {which} brings: from the clone's root, "
+            f"{INSTALLS[extra]}",
             file=sys.stderr,
         )
         return 2
