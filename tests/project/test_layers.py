@@ -278,3 +278,23 @@ def test_no_module_reaches_into_another_packages_internals() -> None:
                 owner = ast.unparse(node.args[0])
                 reached += [f"{name} replaces an attribute of {owner}"] if owner.split(".")[0] in others else []
     assert not reached, reached
+
+
+def project_classes() -> dict[str, list[str]]:
+    """Every class the packages define, by name, with the names of its bases as written."""
+    classes: dict[str, list[str]] = {}
+    for name, tree in parsed_modules().items():
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ClassDef):
+                classes[f"{name}.{node.name}"] = [ast.unparse(base).split(".")[-1] for base in node.bases]
+    return classes
+
+
+def test_no_class_has_more_than_one_base_of_the_project():
+    # Held, not inherited: the training loop holds its update runner, the buffer its frame store and episode index;
+    # a class extends at most one of the project's (SB3's, torch's and typing's bases aside)
+    classes = project_classes()
+    ours = {qualified.rsplit(".", 1)[1] for qualified in classes}
+    assert {"EncoderSAC", "DomainReplayBuffer", "SGFDWeighting"} <= ours
+    stacked = {name: bases for name, bases in classes.items() if len([base for base in bases if base in ours]) > 1}
+    assert not stacked, stacked
