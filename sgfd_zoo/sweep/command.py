@@ -48,7 +48,7 @@ from sgfd_zoo.arguments import (
 from sgfd_zoo.exit_codes import INTERRUPTED
 from sgfd_zoo.report import evaluate
 from sgfd_zoo.runs.folders import find_runs
-from sgfd_zoo.sweep.plan import Job, envs_per_run, gpu_fraction, locked_runs, plan
+from sgfd_zoo.sweep.plan import Job, envs_per_run, gpu_fraction, locked_runs, plan, replay_bytes
 from sgfd_zoo.sweep.ray_runs import ClusterLost, run_jobs
 
 # Train flags the sweep sets per run itself, and what to use instead.
@@ -151,8 +151,11 @@ def parse_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
     args.folder = args.folder.resolve()
     if args.progress_interval <= 0:
         raise ZooError(f"--progress-interval must be > 0, got {args.progress_interval:g}")
-    # How many envs a run trains on: the packing rule gives each env a process of its own on a GPU node.
-    args.envs_per_run = envs_per_run(args.algos, args.envs, quick=has_flag(train_args, "--quick"))
+    # How many envs a run trains on, and its replay buffer's memory: the packing rule gives each env a process of its
+    # own on a GPU node, and puts no more runs on a GPU than their buffers fit in its share of the node's memory.
+    quick = has_flag(train_args, "--quick")
+    args.envs_per_run = envs_per_run(args.algos, args.envs, quick=quick)
+    args.replay_bytes = replay_bytes(args.algos, args.envs, quick=quick)
     return args, train_args
 
 

@@ -8,6 +8,7 @@ import math
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import sgfd_envs
 from sgfd_zoo.algos import hyperparams_entry
@@ -154,6 +155,16 @@ MAX_RUNS_PER_GPU = 8
 TORCH_THREADS_WITH_GPU = 1
 #: Ray counts resources in steps of 1e-4: a GPU fraction is rounded down to it, so that k runs fit one GPU.
 RAY_RESOURCE_STEP = 1e-4
+#: What a replay buffer stores per transition beside its observations (action, reward, done, timeout, domain label,
+#: episode id: about 40 bytes for a 6-d action), rounded up.
+TRANSITION_EXTRA_BYTES = 64
+#: A state observation's bytes, at most (float32; the MT states have 24 to 25 values, the benchmarks' fewer).
+STATE_OBSERVATION_BYTES = 4 * 64
+#: The side of a pixel observation where a run's env kwargs give no ``image_size`` (every id's default).
+DEFAULT_IMAGE_SIZE = 84
+#: The share of a GPU's part of its node's memory (Ray's ``memory`` resource) that its runs' replay buffers may fill:
+#: the rest holds the runs' processes, their env processes and their networks.
+REPLAY_MEMORY_SHARE = 0.75
 
 
 @dataclass(frozen=True)
@@ -165,12 +176,14 @@ class Packing:
     :param cpus_per_run: Ray's ``num_cpus`` of each run: the GPU's share of the node's cores
     :param env_processes: subprocess envs per run (0: its envs step in the run's own process)
     :param torch_threads: torch's CPU threads per run
+    :param replay_bytes: the memory each run's full replay buffer takes (0: not counted)
     """
 
     gpus_per_run: float
     cpus_per_run: float
     env_processes: int
     torch_threads: int
+    replay_bytes: int = 0
 
     @property
     def runs_per_gpu(self) -> int:
@@ -185,34 +198,50 @@ class Packing:
         share = f"{self.runs_per_gpu} run{'s' if self.runs_per_gpu > 1 else ''} per GPU"
         if self.gpus_per_run > 1:
             share = f"{self.gpus_per_run:g} GPUs per run"
-        return f"{share} (--gpus-per-run {self.gpus_per_run:g}); each {self.cpus_per_run:g} CPUs, {threads} and {envs}"
+        replay = f", a replay buffer of {self.replay_bytes / 1e9:.1f} GB" if self.replay_bytes else ""
+        return (
+            f"{share} (--gpus-per-run {self.gpus_per_run:g}); each {self.cpus_per_run:g} CPUs, {threads} and {envs}"
+            f"{replay}"
+        )
 
 
-def packing(cores_per_gpu: float, envs_per_run: int, gpus_per_run: float | None = None) -> Packing:
+def packing(
+    cores_per_gpu: float,
+    envs_per_run: int,
+    gpus_per_run: float | None = None,
+    memory_per_gpu: float | None = None,
+    replay_bytes: int = 0,
+) -> Packing:
     """
     How paper-scale runs share a GPU node (the rule the sweep follows when its runs have a GPU):
 
     - a run needs one core for its learner and one for every :data:`ENV_PROCESSES_PER_CORE` of its env processes
       (each training domain an env process: 4 at paper scale, so 2 cores a run);
     - a GPU holds as many runs as its share of the node's cores feeds, at most :data:`MAX_RUNS_PER_GPU`
-      (16 cores a GPU: 8 runs; 8 cores: 4);
+      (16 cores a GPU: 8 runs; 8 cores: 4), and as many full replay buffers as :data:`REPLAY_MEMORY_SHARE` of its
+      share of the node's memory holds (the paper's pixel buffer: 21.2 GB a run, 4 runs in 128 GiB);
     - each run reserves the GPU's cores divided among its runs, and takes :data:`TORCH_THREADS_WITH_GPU` torch
       threads.
 
     :param cores_per_gpu: the node's CPU cores divided by its GPUs
     :param envs_per_run: training envs of a run (its training domains: ``n_envs``)
     :param gpus_per_run: the GPU fraction asked for (``--gpus-per-run``); None: the rule's
+    :param memory_per_gpu: the node's memory for tasks (bytes) divided by its GPUs; None: not known (not counted)
+    :param replay_bytes: a run's full replay buffer (:func:`replay_bytes`); 0: not counted
     """
     env_processes = envs_per_run if envs_per_run > 1 else 0
     if gpus_per_run is None:
         cores_per_run = 1 + math.ceil(env_processes / ENV_PROCESSES_PER_CORE)
         runs = min(max(int(cores_per_gpu // cores_per_run), 1), MAX_RUNS_PER_GPU)
+        if memory_per_gpu and replay_bytes:
+            runs = min(runs, max(int(memory_per_gpu * REPLAY_MEMORY_SHARE // replay_bytes), 1))
         gpus_per_run = math.floor(1 / runs / RAY_RESOURCE_STEP) * RAY_RESOURCE_STEP
     return Packing(
         gpus_per_run=gpus_per_run,
         cpus_per_run=round(cores_per_gpu * gpus_per_run, 4),
         env_processes=env_processes,
         torch_threads=TORCH_THREADS_WITH_GPU,
+        replay_bytes=replay_bytes,
     )
 
 
@@ -254,8 +283,34 @@ def envs_per_run(algos: Sequence[str], env_ids: Sequence[str], quick: bool = Fal
     return max(counts, default=1)
 
 
+def replay_bytes(algos: Sequence[str], env_ids: Sequence[str], quick: bool = False) -> int:
+    """The memory the largest full replay buffer of these runs takes, from their yaml entries: ``buffer_size``
+    transitions of their observations (pixels: one frame each where the buffer stores each frame once, its
+    ``replay_buffer_kwargs`` naming ``frame_stack``; else both stacks), plus :data:`TRANSITION_EXTRA_BYTES` each.
+
+    :param algos: algorithm keys
+    :param env_ids: env ids
+    :param quick: the quick configuration's yaml
+    """
+    largest = 0
+    for algo in algos:
+        for env_id in env_ids:
+            entry = hyperparams_entry(algo, env_id, quick)
+            given = entry.get("env_kwargs")
+            env_kwargs: dict[str, Any] = given if isinstance(given, dict) else {}
+            if env_kwargs.get("obs_type", "pixels") == "state":
+                observation = 2 * STATE_OBSERVATION_BYTES
+            else:
+                frame = 3 * int(env_kwargs.get("image_size", DEFAULT_IMAGE_SIZE)) ** 2
+                stored_once = "frame_stack" in str(entry.get("replay_buffer_kwargs") or "")
+                observation = frame if stored_once else 2 * int(entry.get("frame_stack") or 1) * frame
+            transitions = int(entry.get("buffer_size", 1_000_000))  # SB3's default where the yaml gives none
+            largest = max(largest, transitions * (observation + TRANSITION_EXTRA_BYTES))
+    return largest
+
+
 def run_resources(
-    args: argparse.Namespace, train_args: list[str], cores_per_gpu: float | None
+    args: argparse.Namespace, train_args: list[str], cores_per_gpu: float | None, memory_per_gpu: float | None = None
 ) -> tuple[list[str], Packing | None]:
     """Set ``args.cpus_per_run`` and ``args.gpus_per_run`` (Ray's reservation of each run) once the cluster is known,
     and return the train flags with each run's torch threads and, on a GPU, its env processes (flags the user gave
@@ -263,9 +318,10 @@ def run_resources(
     threads as CPUs, as before GPUs were packed; with one, the packing rule (:func:`packing`) decides what the user
     left open.
 
-    :param args: the sweep's options (``gpus_per_run`` None: not given; ``envs_per_run``)
+    :param args: the sweep's options (``gpus_per_run`` None: not given; ``envs_per_run``, ``replay_bytes``)
     :param train_args: the flags of each run's ``sgfd-zoo train``
     :param cores_per_gpu: the CPU cores per GPU of the cluster's GPU nodes (the fewest); None: it has no GPU
+    :param memory_per_gpu: their memory for tasks (Ray's ``memory``, bytes) per GPU, the least; None: not known
     """
     rule = None
     if cores_per_gpu is None and args.gpus_per_run:
@@ -275,7 +331,13 @@ def run_resources(
         args.cpus_per_run = args.cpus_per_run or 1.0
         added = ["--num-threads", str(max(math.floor(args.cpus_per_run), 1))]
     else:
-        rule = packing(cores_per_gpu, args.envs_per_run, args.gpus_per_run)
+        if memory_per_gpu is not None and args.replay_bytes > memory_per_gpu:
+            raise ZooError(
+                f"a run's replay buffer takes {args.replay_bytes / 1e9:.1f} GB, more than the "
+                f"{memory_per_gpu / 1e9:.1f} GB of memory per GPU of the cluster's GPU nodes: lower it "
+                "(-params buffer_size:N) or use nodes with more memory"
+            )
+        rule = packing(cores_per_gpu, args.envs_per_run, args.gpus_per_run, memory_per_gpu, args.replay_bytes)
         args.gpus_per_run = rule.gpus_per_run
         args.cpus_per_run = args.cpus_per_run or max(rule.cpus_per_run, 1.0)
         added = ["--num-threads", str(rule.torch_threads)]

@@ -155,13 +155,15 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
 
     start_ray(args)
     try:
-        train_args, packed = run_resources(args, train_args, gpu_node_cores())
+        train_args, packed = run_resources(args, train_args, *gpu_node_shares())
         if packed is not None:
             print(f"sweep: {packed}")
         board = ray.remote(num_cpus=0)(ProgressBoard).options(name=BOARD_NAME).remote()
         task = ray.remote(
             num_cpus=args.cpus_per_run,
             num_gpus=args.gpus_per_run,
+            # a run's replay buffer reserved in Ray's memory, so that a node never holds more buffers than fit
+            memory=args.replay_bytes if packed is not None else 0,
             # A fresh process per run: rl-zoo3's train() sets process-wide state (torch threads, seeds,
             # sys.argv, the algorithm table), and a long run's memory is given back when it ends.
             max_calls=1,
@@ -182,13 +184,17 @@ def run_jobs(jobs: list[Job], train_args: list[str], args: argparse.Namespace) -
         ray.shutdown()
 
 
-def gpu_node_cores() -> float | None:
-    """The CPU cores per GPU of the cluster's live GPU nodes (the fewest, where nodes differ); None without a GPU."""
+def gpu_node_shares() -> tuple[float | None, float | None]:
+    """The CPU cores and the memory for tasks (Ray's ``memory``, bytes) per GPU of the cluster's live GPU nodes (the
+    fewest, where nodes differ); (None, None) without a GPU."""
     import ray
 
     nodes = [node["Resources"] for node in ray.nodes() if node.get("Alive")]
-    shares = [node.get("CPU", 0.0) / node["GPU"] for node in nodes if node.get("GPU", 0) > 0]
-    return min(shares) if shares else None
+    gpu_nodes = [node for node in nodes if node.get("GPU", 0) > 0]
+    if not gpu_nodes:
+        return None, None
+    cores = min(node.get("CPU", 0.0) / node["GPU"] for node in gpu_nodes)
+    return cores, min(node.get("memory", 0.0) / node["GPU"] for node in gpu_nodes) or None
 
 
 class Liveness:

@@ -14,7 +14,7 @@ import pytest
 import sgfd_cli as cli
 from sgfd_zoo.arguments import ZooError
 from sgfd_zoo.sweep import cost
-from sgfd_zoo.sweep.plan import MAX_RUNS_PER_GPU, packing, run_resources
+from sgfd_zoo.sweep.plan import MAX_RUNS_PER_GPU, TRANSITION_EXTRA_BYTES, packing, replay_bytes, run_resources
 
 REPO = Path(__file__).resolve().parents[2]
 PAPER_SPECS = {"paper-table1": "SGFD/walker-walk-v0", "paper-table2": "SGFD/MT-walker-walk-v0"}
@@ -50,7 +50,26 @@ def test_a_gpu_fraction_asked_for_is_kept_and_reserves_the_gpus_share_of_the_cor
 
 
 def namespace(**values: object) -> argparse.Namespace:
-    return argparse.Namespace(**{"gpus_per_run": None, "cpus_per_run": None, "envs_per_run": 4, **values})
+    defaults = {"gpus_per_run": None, "cpus_per_run": None, "envs_per_run": 4, "replay_bytes": 0}
+    return argparse.Namespace(**{**defaults, **values})
+
+
+def test_a_gpu_holds_no_more_runs_than_their_replay_buffers_fit_in_its_share_of_the_memory() -> None:
+    # The paper's pixel runs: a million transitions, each frame stored once (3 x 84 x 84 bytes, and its action,
+    # reward and labels): 21.2 GB a run
+    paper = replay_bytes(["sgfd_sac", "ambs"], ["SGFD/walker-walk-v0"])
+    assert paper == 1_000_000 * (3 * 84 * 84 + TRANSITION_EXTRA_BYTES)
+    assert replay_bytes(["sgfd_sac"], ["SGFD/MT-walker-walk-v0"], quick=True) < 0.1e9  # the quick job's states
+    node = 128 * 2**30  # an H200 host's 128 GiB, one GPU: 3/4 of it holds 4 such buffers, not the cores' 8
+    rule = packing(16, 4, memory_per_gpu=node, replay_bytes=paper)
+    assert rule.runs_per_gpu == 4 and packing(16, 4).runs_per_gpu == 8
+    assert str(rule).endswith("4 env processes, a replay buffer of 21.2 GB")
+    assert packing(16, 4, memory_per_gpu=4 * node, replay_bytes=paper).runs_per_gpu == 8  # the cores bound it then
+    args = namespace(replay_bytes=paper)
+    _, packed = run_resources(args, [], cores_per_gpu=16, memory_per_gpu=node)
+    assert packed is not None and packed.runs_per_gpu == 4 and args.gpus_per_run == 0.25
+    with pytest.raises(ZooError, match=r"a run's replay buffer takes 21.2 GB, more than the 10.0 GB of memory per GPU"):
+        run_resources(namespace(replay_bytes=paper), [], cores_per_gpu=16, memory_per_gpu=10e9)
 
 
 def test_without_a_gpu_a_run_reserves_one_cpu_and_one_thread_as_before() -> None:
