@@ -86,7 +86,7 @@ def test_a_zoo_run_checkpointed_by_version_0_1_0_resumes(tmp_path):
     flags[flags.index("-f") + 1] = str(folder)
     flags[flags.index("-n") + 1] = "600"
     result = subprocess.run(
-        [sys.executable, "-m", "sgfd_zoo", "train", *flags, "--resume"], capture_output=True, text=True, timeout=600
+        [sys.executable, "-m", "sgfd_cli", "train", *flags, "--resume"], capture_output=True, text=True, timeout=600
     )
     assert result.returncode == 0, result.stderr[-2000:]
     assert "300" in result.stdout + result.stderr  # it continued from the checkpoint at 300 steps

@@ -31,7 +31,7 @@ def walker_study(tmp_path_factory):
 def test_collect_states_appends_each_domains_morphology_value():
     sample = correlation.collect_states(ENV_ID, steps_per_domain=20, seed=3)
     assert sample.features.shape == (4 * 20, 10)
-    assert sample.names[:2] == ["orientations[0]", "orientations[1]"] and sample.names[-1] == "torso_length"
+    assert sample.names[:2] == ["orientations[0]", "orientations[1]"] and sample.names[-1] == "left_foot_half_length"
     assert sample.changed == 9
     expected = []
     for domain in range(4):
@@ -50,7 +50,7 @@ def test_collect_states_appends_each_domains_morphology_value():
 def test_features_by_name_pick_those_columns():
     names = ["height", "velocity[0]"]
     sample = correlation.collect_states(ENV_ID, steps_per_domain=5, features=names)
-    assert sample.names == [*names, "torso_length"]
+    assert sample.names == [*names, "left_foot_half_length"]
     full = correlation.collect_states(ENV_ID, steps_per_domain=5, n_state_features=24)
     np.testing.assert_array_equal(sample.features[:, 0], full.features[:, 14])  # height is entry 14
     np.testing.assert_array_equal(sample.features[:, 1], full.features[:, 15])
@@ -61,7 +61,7 @@ def test_study_json_has_the_three_weightings_and_the_goals_hold(walker_study, ca
     raw, glob, sgfd = (document[key]["mean_abs_corr"] for key in ("raw", "global", "sgfd"))
     assert document["raw"]["ess"] == pytest.approx(1.0)
     assert document["n_batches"] == 4 * STEPS // 128 and document["batch_size"] == 128
-    assert document["changed_feature"] == "s10 torso_length" and len(document["features"]) == 10
+    assert document["changed_feature"] == "s10 left_foot_half_length" and len(document["features"]) == 10
     # The matrices are the figures: the changed feature's row gives the reported mean |r|.
     for key, value in (("raw", raw), ("global", glob), ("sgfd", sgfd)):
         matrix = np.array(document["matrices"][key])

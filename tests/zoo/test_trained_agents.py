@@ -110,7 +110,7 @@ def test_the_ids_render_for_humans_in_a_window_and_enjoy_shows_one(logs: Path, m
     monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")  # SDL's window without a screen: pygame draws it all the same
     import pygame
 
-    env = gym.make("SGFD/walker-walk-v0", split="test", domain=1, render_mode="human", image_size=64)
+    env = gym.make("SGFD/walker-walk-v0", split="train", domain=1, render_mode="human", image_size=64)
     assert isinstance(env.unwrapped, gym.Env) and env.render_mode == "human"
     env.reset(seed=0)
     env.step(env.action_space.sample())
@@ -197,7 +197,7 @@ def test_a_dry_run_writes_exactly_what_would_be_pushed(pushed: Path, logs: Path)
     results = json.loads((pushed / "results.json").read_text())["splits"]
     assert list(results) == [label for label, _ in sgfd_envs.evaluation_modes(ENV_ID)]
     assert results["extrapolation"]["domains"] == "1 domain: setting 10 of 1-10"
-    assert results["train"]["domains"] == "4 domains: settings 1, 2, 4, 5 of 1-10"
+    assert results["train"]["domains"] == "4 domains: settings 2, 3, 5, 6 of 1-10"  # the authors' split
     card = ModelCard.load(pushed / "README.md")
     assert card.data.library_name == "stable-baselines3" and ENV_ID in card.data.tags
     evals = card.data.eval_results
@@ -231,7 +231,8 @@ def test_a_local_copy_loads_into_a_finished_run_that_enjoy_and_evaluate_take(pus
     run = RunFolder.at(folder, "sac", ENV_ID, 1)
     assert f"Saved to {run.path}" in out and run.finished
     assert run.model_path.read_bytes() == (pushed / f"sac-{NAME}.zip").read_bytes()
-    assert run.env_kwargs == {"obs_type": "state", "observe_parameter": True}
+    # the settings it trained with, its family among them (recorded by the run: sgfd_envs.families)
+    assert run.env_kwargs == {"obs_type": "state", "observe_parameter": True, "robots": "hipbmdp"}
     assert run.evaluations("train") is not None
     code, out, err = watch(folder, "--no-render", "-n", "500")
     assert code == 0 and "1 Episodes" in out, err
