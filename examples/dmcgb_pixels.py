@@ -87,11 +87,7 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
         + " (each unless given)",
     )
     parser.add_argument("--threads", type=int, default=1, help="torch's CPU threads (%(default)s)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--save", default=None, help="save the model to this path (.zip)")
-    parser.add_argument("--verbose", type=int, default=1, help="1: SB3's table every 4 episodes, 0: quiet")
-    parser.add_argument("--progress", type=float, default=progress.INTERVAL, help="seconds between progress lines")
-    parser.add_argument("--record", default=None, help="write the run's command, machine, times and returns (json)")
+    progress.add_run_arguments(parser)
     args = parser.parse_args(argv)
     for key, value in (CPU_SIZE if args.cpu_size else DEFAULT_SIZE).items():
         if getattr(args, key) is None:
@@ -128,14 +124,7 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
         f"torch threads {torch.get_num_threads()}",
         flush=True,
     )
-    start, cpu_start = time.perf_counter(), time.process_time()
-    model.learn(args.steps, callback=progress.TrainingProgress(f"train {args.algo}", args.progress))
-    seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
-    # Wall time depends on what else the machine runs; the process's CPU time (over all its threads) much less.
-    print(
-        f"trained {args.steps} steps in {seconds:.0f} s: {1000 * seconds / args.steps:.0f} ms per step "
-        f"({1000 * cpu_seconds / args.steps:.0f} ms of CPU)"
-    )
+    seconds, cpu_seconds = progress.learn_timed(model, args.steps, f"train {args.algo}", args.progress)
     if args.save:
         model.save(args.save)
 
@@ -150,22 +139,10 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
         )
         env.close()
     eval_seconds = time.perf_counter() - eval_start
-    print(f"evaluated in {eval_seconds:.0f} s; the returns of the trained model:")
-    for split, (mean, std) in returns.items():
-        print(f"{split:>12}: return {mean:7.1f} ± {std:.1f} over {args.eval_episodes} episodes")
+    progress.print_returns(returns, args.eval_episodes, eval_seconds)
     if args.record:
-        figures = dict(
-            wall_seconds=round(time.perf_counter() - began, 1),
-            train_seconds=round(seconds, 1),
-            ms_per_step=round(1000 * seconds / args.steps),
-            cpu_ms_per_step=round(1000 * cpu_seconds / args.steps),
-            eval_seconds=round(eval_seconds, 1),
-            eval_episodes=args.eval_episodes,
-            returns={split: [round(mean, 1), round(std, 1)] for split, (mean, std) in returns.items()},
-        )
-        progress.write_record(
-            args.record, Path(__file__).name, list(sys.argv[1:] if argv is None else argv), figures, machine
-        )
+        times, argv = (seconds, cpu_seconds, eval_seconds), list(sys.argv[1:] if argv is None else argv)
+        progress.write_run_record(args, Path(__file__).name, argv, machine, began, times, returns)
     return returns
 
 

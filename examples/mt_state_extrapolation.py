@@ -95,11 +95,7 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
     parser.add_argument("--classifier-start", type=int, default=None, help="default: a fifth of --steps")
     parser.add_argument("--eval-episodes", type=int, default=10, help="episodes per split (%(default)s)")
     parser.add_argument("--splits", nargs="+", default=None, help="splits to evaluate on (default: every one)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--save", default=None, help="save the model to this path (.zip)")
-    parser.add_argument("--verbose", type=int, default=1, help="1: SB3's table every 4 episodes, 0: quiet")
-    parser.add_argument("--progress", type=float, default=progress.INTERVAL, help="seconds between progress lines")
-    parser.add_argument("--record", default=None, help="write the run's command, machine, times and returns (json)")
+    progress.add_run_arguments(parser)
     args = parser.parse_args(argv)
     if args.steps <= 0:
         parser.error(f"--steps must be positive, got {args.steps}")
@@ -112,37 +108,18 @@ def main(argv: list[str] | None = None) -> dict[str, tuple[float, float]]:
     classifier_start = args.steps // 5 if args.classifier_start is None else args.classifier_start
     machine, began = progress.machine(), time.perf_counter()
     model = make_model(args.algo, args.env, args.seed, args.steps, classifier_start, args.verbose)
-    start, cpu_start = time.perf_counter(), time.process_time()
     run = f"{args.algo} {args.env.split('/')[-1]} seed {args.seed}"
-    model.learn(args.steps, callback=progress.TrainingProgress(f"train {run}", args.progress))
-    seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
-    # Wall time depends on what else the machine runs; the process's CPU time much less.
-    print(
-        f"trained {args.algo} on {args.env} (train split) for {args.steps} steps in {seconds:.0f} s: "
-        f"{1000 * seconds / args.steps:.1f} ms per step ({1000 * cpu_seconds / args.steps:.1f} ms of CPU)"
-    )
+    seconds, cpu_seconds = progress.learn_timed(model, args.steps, f"train {run}", args.progress, ms_digits=1)
     if args.save:
         model.save(args.save)
 
     eval_start = time.perf_counter()
     returns = evaluate(model, args.env, splits, args.eval_episodes, args.seed, f"evaluate {run}")
     eval_seconds = time.perf_counter() - eval_start
-    print(f"evaluated in {eval_seconds:.0f} s; the returns of the trained model:")
-    for split, (mean, std) in returns.items():
-        print(f"{split:>14}: return {mean:7.1f} ± {std:.1f} over {args.eval_episodes} episodes")
+    progress.print_returns(returns, args.eval_episodes, eval_seconds)
     if args.record:
-        figures = dict(
-            wall_seconds=round(time.perf_counter() - began, 1),
-            train_seconds=round(seconds, 1),
-            ms_per_step=round(1000 * seconds / args.steps, 1),
-            cpu_ms_per_step=round(1000 * cpu_seconds / args.steps, 1),
-            eval_seconds=round(eval_seconds, 1),
-            eval_episodes=args.eval_episodes,
-            returns={split: [round(mean, 1), round(std, 1)] for split, (mean, std) in returns.items()},
-        )
-        progress.write_record(
-            args.record, Path(__file__).name, list(sys.argv[1:] if argv is None else argv), figures, machine
-        )
+        times, argv = (seconds, cpu_seconds, eval_seconds), list(sys.argv[1:] if argv is None else argv)
+        progress.write_run_record(args, Path(__file__).name, argv, machine, began, times, returns, ms_digits=1)
     return returns
 
 

@@ -8,6 +8,7 @@ machine, times and returns as json: the figures the documentation quotes are cop
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import json
 import os
@@ -25,6 +26,16 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv
 
 INTERVAL = 20.0  # seconds between progress lines
+
+
+def add_run_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of a run that trains one model and evaluates it: its seed, where to save it, how much it says,
+    and its record."""
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--save", default=None, help="save the model to this path (.zip)")
+    parser.add_argument("--verbose", type=int, default=1, help="1: SB3's table every 4 episodes, 0: quiet")
+    parser.add_argument("--progress", type=float, default=INTERVAL, help="seconds between progress lines")
+    parser.add_argument("--record", default=None, help="write the run's command, machine, times and returns (json)")
 
 
 def duration(seconds: float) -> str:
@@ -100,6 +111,71 @@ def evaluate(model: BaseAlgorithm, env: VecEnv, episodes: int, label: str, inter
 
     returns, _ = evaluate_policy(model, env, n_eval_episodes=episodes, callback=report, return_episode_rewards=True)
     return [float(value) for value in returns]
+
+
+def learn_timed(
+    model: BaseAlgorithm, steps: int, label: str, interval: float = INTERVAL, ms_digits: int = 0
+) -> tuple[float, float]:
+    """``model.learn(steps)`` with a line of progress every ``interval`` seconds and one at the end; its wall time
+    and the process's CPU time (over all its threads: it depends much less than the wall time on what else the
+    machine runs).
+
+    :param model: the model to train
+    :param steps: the steps it trains
+    :param label: what trains, at the start of each line
+    :param interval: seconds between progress lines
+    :param ms_digits: the decimals of the milliseconds per step in the last line
+    """
+    start, cpu_start = time.perf_counter(), time.process_time()
+    model.learn(steps, callback=TrainingProgress(label, interval))
+    seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
+    print(
+        f"{label}: {steps} steps in {seconds:.0f} s: {1000 * seconds / steps:.{ms_digits}f} ms per step "
+        f"({1000 * cpu_seconds / steps:.{ms_digits}f} ms of CPU)"
+    )
+    return seconds, cpu_seconds
+
+
+def print_returns(returns: dict[str, tuple[float, float]], episodes: int, eval_seconds: float) -> None:
+    """The evaluation's time, then a line per split: the mean and standard deviation of its returns."""
+    print(f"evaluated in {eval_seconds:.0f} s; the returns of the trained model:")
+    width = max(len(split) for split in returns)
+    for split, (mean, std) in returns.items():
+        print(f"{split:>{width}}: return {mean:7.1f} ± {std:.1f} over {episodes} episodes")
+
+
+def write_run_record(
+    args: argparse.Namespace,
+    script: str,
+    argv: list[str],
+    started: dict[str, Any],
+    began: float,
+    times: tuple[float, float, float],
+    returns: dict[str, tuple[float, float]],
+    ms_digits: int | None = None,
+) -> None:
+    """:func:`write_record` into ``args.record`` with what a training-and-evaluation example measured of its run.
+
+    :param args: the example's options (``record``, ``steps``, ``eval_episodes``)
+    :param script: the example's file name
+    :param argv: its arguments
+    :param started: :func:`machine` at the start of the run
+    :param began: ``time.perf_counter()`` at the run's start
+    :param times: the training's wall and CPU seconds (:func:`learn_timed`) and the evaluation's wall seconds
+    :param returns: the mean and standard deviation of the returns of each split
+    :param ms_digits: the decimals of the milliseconds per step (None: whole milliseconds)
+    """
+    seconds, cpu_seconds, eval_seconds = times
+    figures = dict(
+        wall_seconds=round(time.perf_counter() - began, 1),
+        train_seconds=round(seconds, 1),
+        ms_per_step=round(1000 * seconds / args.steps, ms_digits),
+        cpu_ms_per_step=round(1000 * cpu_seconds / args.steps, ms_digits),
+        eval_seconds=round(eval_seconds, 1),
+        eval_episodes=args.eval_episodes,
+        returns={split: [round(mean, 1), round(std, 1)] for split, (mean, std) in returns.items()},
+    )
+    write_record(args.record, script, argv, figures, started)
 
 
 def machine() -> dict[str, Any]:
