@@ -65,15 +65,27 @@ def _media_files(folder: Path) -> tuple[Path, ...]:
     )
 
 
+def existing_folder(folder: str | Path, argument: str, give: str | None = None) -> Path:
+    """``folder`` as a Path (``~`` expanded) if it is an existing folder, else a FileNotFoundError naming it.
+
+    :param folder: the folder a user gave
+    :param argument: the keyword argument that gave it, for the message
+    :param give: what to give instead, said in the message (None: nothing)
+    """
+    path = Path(folder).expanduser()
+    if not path.is_dir():
+        hint = "" if give is None else f" ({give})"
+        raise FileNotFoundError(f"{argument} {str(path)!r} is not an existing folder{hint}")
+    return path
+
+
 def background_files(background_dir: str | Path) -> dict[str, tuple[Path, ...]]:
     """The source files of each split in a user's folder.
 
     :param background_dir: folder with ``train/`` and ``test/`` subfolders, or a flat folder of at
         least five videos/images (the first four, sorted by name, are the training sources)
     """
-    folder = Path(background_dir).expanduser()
-    if not folder.is_dir():
-        raise FileNotFoundError(f"background_dir {str(folder)!r} is not an existing folder")
+    folder = existing_folder(background_dir, "background_dir")
     suffixes = ", ".join(VIDEO_SUFFIXES + IMAGE_SUFFIXES)
     subfolders = {split: folder / split for split in BACKGROUND_SPLITS}
     present = [split for split, sub in subfolders.items() if sub.is_dir()]

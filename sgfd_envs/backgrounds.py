@@ -268,7 +268,27 @@ def overlay_bank(height: int, width: int, n_images: int = len(OVERLAY_SEEDS)) ->
 # --- file sources ---------------------------------------------------------------------------------
 
 
-class VideoBackground:
+class _FittedFiles:
+    """Frames read from files, each fitted by :func:`fit_frame` as it is read (the parameters:
+    :class:`ImageBackground`'s)."""
+
+    def __init__(
+        self, height: int, width: int, grayscale: bool, crop: bool, interpolation: int, halvings: int, argument: str
+    ) -> None:
+        self.height, self.width, self.grayscale = height, width, grayscale
+        self._argument = argument
+        self._fit = functools.partial(
+            fit_frame,
+            height=height,
+            width=width,
+            grayscale=grayscale,
+            crop=crop,
+            interpolation=interpolation,
+            halvings=halvings,
+        )
+
+
+class VideoBackground(_FittedFiles):
     """The first ``frame_budget`` frames of a video file, each fitted by :func:`fit_frame`, decoded as they are first
     needed (the first at construction, so an unreadable file fails where it is given).
 
@@ -277,10 +297,8 @@ class VideoBackground:
     :param width: frame width
     :param frame_budget: most frames kept (DBC: 1000), None for all
     :param grayscale: replicate the luma into the three channels (DBC's setting)
-    :param crop: centre-crop each frame to the output's aspect ratio (else resize it whole)
-    :param interpolation: OpenCV interpolation of the resize
-    :param halvings: 2x2 averagings after it (frames of ``height >> halvings`` by ``width >> halvings``)
-    :param argument: the keyword argument that gave the file, for messages
+
+    ``crop``, ``interpolation``, ``halvings`` and ``argument``: as :class:`ImageBackground`'s.
     """
 
     def __init__(
@@ -296,17 +314,9 @@ class VideoBackground:
         halvings: int = 0,
         argument: str = "background_dir",
     ) -> None:
+        super().__init__(height, width, grayscale, crop, interpolation, halvings, argument)
         self.path = str(path)
-        self.height, self.width, self.frame_budget, self.grayscale = height, width, frame_budget, grayscale
-        self._fit = functools.partial(
-            fit_frame,
-            height=height,
-            width=width,
-            grayscale=grayscale,
-            crop=crop,
-            interpolation=interpolation,
-            halvings=halvings,
-        )
+        self.frame_budget = frame_budget
         self._frames: list[np.ndarray] = []
         self._capture: cv2.VideoCapture | None = cv2.VideoCapture(self.path)
         frame_size = (self._capture.get(cv2.CAP_PROP_FRAME_WIDTH), self._capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
@@ -336,7 +346,7 @@ class VideoBackground:
         return self._frames[index]
 
 
-class ImageBackground:
+class ImageBackground(_FittedFiles):
     """Still images as frames, each fitted by :func:`fit_frame` and read as first needed (the first at construction):
     one image (a one-frame source), or a video stored as one image file per frame (DAVIS).
 
@@ -362,18 +372,8 @@ class ImageBackground:
         halvings: int = 0,
         argument: str = "background_dir",
     ) -> None:
+        super().__init__(height, width, grayscale, crop, interpolation, halvings, argument)
         self.paths = (Path(paths),) if isinstance(paths, (str, Path)) else tuple(Path(p) for p in paths)
-        self.height, self.width, self.grayscale = height, width, grayscale
-        self._fit = functools.partial(
-            fit_frame,
-            height=height,
-            width=width,
-            grayscale=grayscale,
-            crop=crop,
-            interpolation=interpolation,
-            halvings=halvings,
-        )
-        self._argument = argument
         self._frames: dict[int, np.ndarray] = {}
         self.frame(0)
 

@@ -247,11 +247,16 @@ def _benchmark_env(
     )
 
 
-def _check_common(env_id: str, split: str, image_size: int, render: str, texture_cache_mb: int) -> None:
+def _checked_common(
+    env_id: str, split: str, obs_type: str, image_size: int, render_mode: str | None, render: str, texture_cache_mb: int
+) -> dict[str, Any]:
+    """The keywords every benchmark builder takes, checked, and those of them :class:`DMCEnv` takes (the ``common``
+    of :func:`_benchmark_env`)."""
     check_image_size(image_size)
     check_texture_cache_mb(texture_cache_mb)
     check_benchmark_split(env_id, split)
     check_render(render)
+    return {"obs_type": obs_type, "image_size": image_size, "render_mode": render_mode, "render": render}
 
 
 @refusing_other_kwargs
@@ -286,13 +291,12 @@ def make_dmcgb_env(
         each sent to the GPU once (past it, a frame is sent at each view; 0: no cache)
     """
     entry = entry_of_kind(env_id, DMCGB)
-    _check_common(env_id, split, image_size, render, texture_cache_mb)
+    common = _checked_common(env_id, split, obs_type, image_size, render_mode, render, texture_cache_mb)
     make_distraction = dmcgb.family_distraction(
         entry.robot, split, intensity, data_dir, background_dir, image_size, render,
         lambda physics: dmcgb.DMCGBDistraction(physics, split, image_size, data_dir),
         texture_cache_mb=texture_cache_mb,
     )  # fmt: skip
-    common = {"obs_type": obs_type, "image_size": image_size, "render_mode": render_mode, "render": render}
     return _benchmark_env(
         env_id, DMCGB, split, domain, common, make_distraction, data_dir=data_dir, background_dir=background_dir
     )
@@ -331,7 +335,7 @@ def make_dmcgb2_env(
         each sent to the GPU once (past it, a frame is sent at each view; 0: no cache)
     """
     entry = entry_of_kind(env_id, DMCGB2)
-    _check_common(env_id, split, image_size, render, texture_cache_mb)
+    common = _checked_common(env_id, split, obs_type, image_size, render_mode, render, texture_cache_mb)
     make_distraction = dmcgb.family_distraction(
         entry.robot, split, intensity, data_dir, background_dir, image_size, render,
         lambda physics: dmcgb2.DMCGB2Distraction(physics, entry.robot, split, image_size, data_dir, render),
@@ -341,7 +345,6 @@ def make_dmcgb2_env(
     if "video" in split:
         side = dmcgb2.projector_texture_side(image_size, render)
         dm_env = dmcgb2.load_with_projector(entry.robot, entry.task, side)
-    common = {"obs_type": obs_type, "image_size": image_size, "render_mode": render_mode, "render": render}
     return _benchmark_env(
         env_id, DMCGB2, split, domain, common, make_distraction, dm_env, data_dir=data_dir,
         background_dir=background_dir,
@@ -388,7 +391,7 @@ def make_dcs_env(
         raise ValueError(f"dynamic must be True or False, got {dynamic!r}")
     if background_videos not in dcs.VIDEO_SPLITS:
         raise ValueError(f"background_videos must be one of {dcs.VIDEO_SPLITS}, got {background_videos!r}")
-    _check_common(env_id, split, image_size, render, texture_cache_mb)
+    common = _checked_common(env_id, split, obs_type, image_size, render_mode, render, texture_cache_mb)
     if background_dir is not None:
         davis_folder(background_dir)
 
@@ -399,7 +402,6 @@ def make_dcs_env(
             background_dir, render=render, texture_cache_mb=texture_cache_mb,
         )  # fmt: skip
 
-    common = {"obs_type": obs_type, "image_size": image_size, "render_mode": render_mode, "render": render}
     return _benchmark_env(
         env_id, DCS, split, domain, common, make_distraction, background_dir=background_dir,
         distractions=distractions,

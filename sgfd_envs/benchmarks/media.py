@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 from dm_control.suite import common
 
-from sgfd_envs.background_splits import IMAGE_SUFFIXES
+from sgfd_envs.background_splits import IMAGE_SUFFIXES, existing_folder
 from sgfd_envs.backgrounds import (
     BackgroundSource,
     ImageBackground,
@@ -176,13 +176,11 @@ def colour_set(difficulty: str, data_dir: str | Path | None) -> list[dict[str, n
 
 def check_data_dir(data_dir: str | Path) -> Path:
     """``data_dir`` as a Path if it is an existing folder, else a FileNotFoundError naming it."""
-    folder = Path(data_dir).expanduser()
-    if not folder.is_dir():
-        raise FileNotFoundError(
-            f"data_dir {str(folder)!r} is not an existing folder (give DMC-GB's src/env/data, which holds "
-            "color_easy.pt, color_hard.pt, video_easy/ and video_hard/)"
-        )
-    return folder
+    return existing_folder(
+        data_dir,
+        "data_dir",
+        "give DMC-GB's src/env/data, which holds color_easy.pt, color_hard.pt, video_easy/ and video_hard/",
+    )
 
 
 # --- clips -----------------------------------------------------------------------------------------------
@@ -328,11 +326,8 @@ def davis_video(folder: Path, size: int, interpolation: int, halvings: int = 0) 
 
 def davis_folder(background_dir: str | Path) -> Path:
     """The folder of DAVIS's video folders: ``background_dir`` itself or its ``JPEGImages/480p``."""
-    folder = Path(background_dir).expanduser()
-    if not folder.is_dir():
-        raise FileNotFoundError(
-            f"background_dir {str(folder)!r} is not an existing folder (give DAVIS's JPEGImages/480p, which holds "
-            "one folder of frames per video)"
-        )
+    folder = existing_folder(
+        background_dir, "background_dir", "give DAVIS's JPEGImages/480p, which holds one folder of frames per video"
+    )
     nested = folder / "JPEGImages" / "480p"
     return nested if nested.is_dir() else folder
