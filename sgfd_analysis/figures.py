@@ -455,11 +455,7 @@ def _run_parser(prog: str, description: str) -> argparse.ArgumentParser:
 
 
 def _pixel_agent(args: argparse.Namespace, command: str) -> tuple[RunFolder, BaseAlgorithm]:
-    """The run the options of :func:`_run_parser` choose and its model, refused unless it sees pixels.
-
-    :param args: the parsed options
-    :param command: the command's name, for the refusal
-    """
+    """The run and model :func:`_run_parser`'s options choose; a model without pixels is refused for ``command``."""
     run = select_run(args.folder, args.env, args.algo, args.exp_id)
     model = run.load_model()
     require_pixels(model, run, command)
@@ -467,11 +463,7 @@ def _pixel_agent(args: argparse.Namespace, command: str) -> tuple[RunFolder, Bas
 
 
 def _titled(fig: Figure, title: str) -> Figure:
-    """``fig`` with ``title`` above it, broken into lines that fit its width (about 0.07 inch per character at 9 pt).
-
-    :param fig: the figure
-    :param title: its title, one line
-    """
+    """``fig`` with ``title`` above it, in lines that fit its width (about 0.07 inch per character at 9 pt)."""
     fig.suptitle(textwrap.fill(title, width=max(20, int(fig.get_figwidth() / 0.07))), fontsize=9)
     return fig
 
