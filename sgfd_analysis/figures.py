@@ -164,8 +164,7 @@ def saliency_figure(
     for ax in axes.flat:
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.suptitle(_wrap(title, fig), fontsize=9)
-    return fig
+    return _titled(fig, title)
 
 
 def saliency_maps_main(argv: list[str]) -> int:
@@ -176,9 +175,7 @@ def saliency_maps_main(argv: list[str]) -> int:
     steps = _steps(args.steps)
     if args.max_domains < 1:
         raise ZooError(f"--max-domains must be >= 1, got {args.max_domains}")
-    run = select_run(args.folder, args.env, args.algo, args.exp_id)
-    model = run.load_model()
-    require_pixels(model, run, "saliency-maps")
+    run, model = _pixel_agent(args, "saliency-maps")
     if not isinstance(model, SAC):
         raise ZooError(f"saliency-maps needs a SAC-family agent (the actor's mean action); {run.path} holds {run.algo}")
     rows = saliency_rows(run, args.max_domains)
@@ -272,8 +269,7 @@ def weighted_samples_figure(
             ax.imshow(frames[index], interpolation="nearest")
             ax.set_title(f"w={weights[index]:.2f}", fontsize=7)
         subfig.suptitle(f"{name}: {len(group)} frames, mean weight {weights[group].mean():.3f}", fontsize=9)
-    fig.suptitle(_wrap(title, fig), fontsize=9)
-    return fig
+    return _titled(fig, title)
 
 
 def weighted_samples_main(argv: list[str]) -> int:
@@ -283,9 +279,7 @@ def weighted_samples_main(argv: list[str]) -> int:
     parser.add_argument("--rollout-steps", type=int, default=200, help="agent steps per domain to sample from")
     parser.add_argument("--columns", type=int, default=16, help="frames per row of the figure")
     args = parser.parse_args(argv)
-    run = select_run(args.folder, args.env, args.algo, args.exp_id)
-    model = run.load_model()
-    require_pixels(model, run, "weighted-samples")
+    run, model = _pixel_agent(args, "weighted-samples")
     if not hasattr(model, "classifier"):
         raise ZooError(f"weighted-samples needs an SGFD_SAC agent; {run.path} is {type(model).__name__}")
     domains = _domains(args.domains, sgfd_envs.n_domains(run.env_id, "train", **run.env_kwargs))
@@ -460,9 +454,18 @@ def _run_parser(prog: str, description: str) -> argparse.ArgumentParser:
     return parser
 
 
-def _wrap(title: str, fig: Figure) -> str:
-    """The title broken into lines that fit the figure's width (about 0.07 inch per character at 9 pt)."""
-    return textwrap.fill(title, width=max(20, int(fig.get_figwidth() / 0.07)))
+def _pixel_agent(args: argparse.Namespace, command: str) -> tuple[RunFolder, BaseAlgorithm]:
+    """The run and model :func:`_run_parser`'s options choose; a model without pixels is refused for ``command``."""
+    run = select_run(args.folder, args.env, args.algo, args.exp_id)
+    model = run.load_model()
+    require_pixels(model, run, command)
+    return run, model
+
+
+def _titled(fig: Figure, title: str) -> Figure:
+    """``fig`` with ``title`` above it, in lines that fit its width (about 0.07 inch per character at 9 pt)."""
+    fig.suptitle(textwrap.fill(title, width=max(20, int(fig.get_figwidth() / 0.07))), fontsize=9)
+    return fig
 
 
 def _out_dir(args: argparse.Namespace) -> Path:

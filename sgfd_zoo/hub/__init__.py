@@ -34,3 +34,13 @@ VEC_NORMALIZE, METRICS, RESULTS, CARD, VIDEO = (
 def model_file(algo: str, env_name: str) -> str:
     """rl-zoo3's name of a model in a repository: ``<algo>-<EnvName>.zip`` (huggingface_sb3's ``ModelName``)."""
     return f"{algo}-{env_name}.zip"
+
+
+def repository_id(organization: str, repo_name: str | None, model: str) -> str:
+    """``<organization>/<name>`` of a run's repository, the name by default the model's file name without ``.zip``.
+
+    :param organization: the Hub user or organization (``-orga``)
+    :param repo_name: the repository's name (``-name``), or None
+    :param model: the model's file name (:func:`model_file`)
+    """
+    return f"{organization}/{repo_name or model.removesuffix('.zip')}"

@@ -20,13 +20,13 @@ from pathlib import Path
 
 from sgfd_zoo.algos import SGFD_ALGOS
 from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_env_id
-from sgfd_zoo.hub import ARGS, CONFIG, ENV_KWARGS, METRICS, VEC_NORMALIZE, model_file
+from sgfd_zoo.hub import ARGS, CONFIG, ENV_KWARGS, METRICS, VEC_NORMALIZE, model_file, repository_id
 from sgfd_zoo.hub.push import METRIC_FILES
 from sgfd_zoo.runs.files import atomic_write
 from sgfd_zoo.runs.folders import RunFolder, env_name, mark_finished
 from sgfd_zoo.runs.locks import claim_new_run
 from sgfd_zoo.runs.safe import plain_name
-from sgfd_zoo.trained import saved_settings
+from sgfd_zoo.trained import first_line, saved_settings
 
 #: The largest metric file taken out of ``train_eval_metrics.zip``, inflated (a run's logs are megabytes)
 MAX_METRIC_BYTES = 256 * 2**20
@@ -69,14 +69,13 @@ def download(args: argparse.Namespace, model: str) -> Path:
     """The repository's files in huggingface_hub's cache (only those a run folder takes); their folder."""
     from huggingface_hub import snapshot_download
 
-    repo_id = f"{args.organization}/{args.repo_name or model[:-4]}"
+    repo_id = repository_id(args.organization, args.repo_name, model)
     print(f"Downloading https://huggingface.co/{repo_id}")
     patterns = [model, CONFIG, ARGS, ENV_KWARGS, VEC_NORMALIZE, METRICS]
     try:
         return Path(snapshot_download(repo_id=repo_id, revision=args.revision, allow_patterns=patterns))
     except Exception as error:  # huggingface_hub's errors: no such repository, no network, a private one
-        lines = str(error).strip().splitlines() or [type(error).__name__]
-        raise ZooError(f"{repo_id}: not downloaded ({type(error).__name__}: {lines[0]})") from None
+        raise ZooError(f"{repo_id}: not downloaded ({type(error).__name__}: {first_line(error)})") from None
 
 
 def copy_run(source: Path, model: str, folder: Path, algo: str, env_id: str) -> RunFolder:

@@ -23,9 +23,20 @@ import yaml
 
 import sgfd_envs
 from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_at_least
-from sgfd_zoo.hub import ARGS, CARD, CONFIG, ENV_KWARGS, METRICS, RESULTS, VEC_NORMALIZE, VIDEO, model_file
+from sgfd_zoo.hub import (
+    ARGS,
+    CARD,
+    CONFIG,
+    ENV_KWARGS,
+    METRICS,
+    RESULTS,
+    VEC_NORMALIZE,
+    VIDEO,
+    model_file,
+    repository_id,
+)
 from sgfd_zoo.runs.safe import redact_values
-from sgfd_zoo.trained import TrainedAgent, find_agent, saved_settings
+from sgfd_zoo.trained import TrainedAgent, find_agent, first_line, saved_settings
 
 #: What of a run folder goes into ``train_eval_metrics.zip`` (rl-zoo3 puts its evaluations.npz and csv files there)
 METRIC_FILES = ("evaluations.npz", "evaluations_*.npz", "*.monitor.csv", "progress*.csv")
@@ -73,7 +84,7 @@ def main(argv: Sequence[str]) -> int:
 
     register_algorithms()
     agent = find_agent(_agent_arguments(args))
-    repo_id = f"{args.organization or 'ORGANIZATION'}/{args.repo_name or model_file(agent.algo, _name(agent))[:-4]}"
+    repo_id = repository_id(args.organization or "ORGANIZATION", args.repo_name, model_file(agent.algo, _name(agent)))
     if args.dry_run is not None:
         folder = _empty_folder(Path(args.dry_run))
         with tempfile.TemporaryDirectory(prefix=".sgfd-zoo-hub-", dir=folder.parent) as staging:
@@ -185,6 +196,5 @@ def upload(folder: Path, repo_id: str, message: str) -> str:
         url = api.create_repo(repo_id=repo_id, exist_ok=True)
         api.upload_folder(repo_id=repo_id, folder_path=folder, commit_message=message)
     except Exception as error:  # huggingface_hub's errors: no token, no network, no right to the repository
-        lines = str(error).strip().splitlines() or [type(error).__name__]
-        raise ZooError(f"the Hub refused or did not answer ({type(error).__name__}: {lines[0]})") from None
+        raise ZooError(f"the Hub refused or did not answer ({type(error).__name__}: {first_line(error)})") from None
     return str(url)

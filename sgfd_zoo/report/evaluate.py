@@ -124,20 +124,14 @@ def render_tables(results: list[dict[str, Any]]) -> str:
                     cells.append("–")
                     continue
                 totals[algo] += float(np.mean(values))
-                cells.append(f"{np.mean(values):.1f} ± {np.std(values):.1f}")
+                cells.append(_mean_std(values))
             matrix.append(cells)
         matrix.append(["**Total**", *(f"**{totals[algo]:.1f}**" for algo in algos)])
         counts = [len(values) for (s, _, _), values in by_cell.items() if s == split]
         mark = STAND_IN_MARK if split in stand_in_splits else ""
-        writer = MarkdownTableWriter(
-            table_name=f"{markdown_text(split)}{mark} ({over_seeds(counts)})",
-            headers=["Task", *(markdown_text(column_name(algo), pipes=False) for algo in algos)],
-            value_matrix=matrix,
-        )
-        writer.margin = 1
-        out.write(writer.dumps())
-        out.write(STAND_IN_NOTE if mark else "")
-        out.write("\n")
+        name = f"{markdown_text(split)}{mark} ({over_seeds(counts)})"
+        headers = ["Task", *(markdown_text(column_name(algo), pipes=False) for algo in algos)]
+        _write_table(out, name, headers, matrix, stand_in=bool(mark))
     return out.getvalue()
 
 
@@ -184,7 +178,7 @@ def render_benchmark_tables(results: list[dict[str, Any]], reps: int = 2000, see
                 cells = [markdown_text(env.split("/", 1)[1].rsplit("-v", 1)[0], pipes=False)]
                 for mode in modes:
                     values = by_cell.get((algo, env, mode))
-                    cells.append("–" if values is None else f"{np.mean(values):.1f} ± {np.std(values):.1f}")
+                    cells.append("–" if values is None else _mean_std(values))
                 matrix.append(cells)
             aggregate_cells = ["**IQM**"]
             for mode in modes:
@@ -194,19 +188,33 @@ def render_benchmark_tables(results: list[dict[str, Any]], reps: int = 2000, see
                 )
             matrix.append(aggregate_cells)
             counts = [len(values) for (a, _, _), values in by_cell.items() if a == algo]
-            writer = MarkdownTableWriter(
-                table_name=(
-                    f"{name}: {markdown_text(column_name(algo))} ({over_seeds(counts)}; "
-                    f"IQM of return / {MAX_RETURN:g} over runs x tasks, 95% CI)"
-                ),
-                headers=["Task", *headers],
-                value_matrix=matrix,
+            title = (
+                f"{name}: {markdown_text(column_name(algo))} ({over_seeds(counts)}; "
+                f"IQM of return / {MAX_RETURN:g} over runs x tasks, 95% CI)"
             )
-            writer.margin = 1
-            out.write(writer.dumps())
-            out.write(STAND_IN_NOTE if stand_in_modes else "")
-            out.write("\n")
+            _write_table(out, title, ["Task", *headers], matrix, stand_in=bool(stand_in_modes))
     return out.getvalue()
+
+
+def _mean_std(values: list[float]) -> str:
+    """A cell's ``mean ± std`` of the seeds' returns, one decimal each."""
+    return f"{np.mean(values):.1f} ± {np.std(values):.1f}"
+
+
+def _write_table(out: io.StringIO, name: str, headers: list[str], matrix: list[list[str]], stand_in: bool) -> None:
+    """One markdown table into ``out``: its title, header and rows, the stand-in note where ``stand_in``, a blank line.
+
+    :param out: where the tables are written
+    :param name: the table's title
+    :param headers: its column headers
+    :param matrix: its rows of cells
+    :param stand_in: whether a column played on a benchmark's built-in stand-in (the note follows the table)
+    """
+    writer = MarkdownTableWriter(table_name=name, headers=headers, value_matrix=matrix)
+    writer.margin = 1
+    out.write(writer.dumps())
+    out.write(STAND_IN_NOTE if stand_in else "")
+    out.write("\n")
 
 
 def over_seeds(counts: list[int]) -> str:
