@@ -229,11 +229,10 @@ STATE_SETTINGS: list[tuple[str, dict]] = [
 ]
 
 
-def state_table(env_id: str, steps_per_domain: int = 1000) -> None:
-    """The same solver on real states: random-action states of the id's training domains with the varied
-    parameter appended (sgfd-zoo correlation-study's sample, every state entry), a DomainClassifier trained
-    to the 0.9 threshold on them, then the weights of each batch of 128. Reported: the mean |r| between the
-    parameter and the other features, its reduction, and ESS / n, over the batches (mean and worst)."""
+def real_states(env_id: str, steps_per_domain: int):
+    """Random-action states of the id's training domains with the varied parameter appended (sgfd-zoo
+    correlation-study's sample), standardised; a DomainClassifier trained to the 0.9 threshold on them; the columns
+    other than the parameter's; and a shuffled order of the rows (batches of 128 are taken in it)."""
     with gym.make(env_id, obs_type="state") as env:
         n_state = len(state_names(env, env_id))
     sample = collect_states(env_id, steps_per_domain=steps_per_domain, n_state_features=n_state)
@@ -241,7 +240,15 @@ def state_table(env_id: str, steps_per_domain: int = 1000) -> None:
     generator = torch.Generator().manual_seed(0)
     classifier, _ = correlation_classifier(z_all, domains, int(domains.max()) + 1, N_BATCH, generator)
     others = [column for column in range(z_all.shape[1]) if column != sample.changed]
-    order = torch.randperm(len(z_all), generator=generator)
+    return sample, z_all, classifier, others, torch.randperm(len(z_all), generator=generator)
+
+
+def state_table(env_id: str, steps_per_domain: int = 1000) -> None:
+    """The same solver on real states: random-action states of the id's training domains with the varied
+    parameter appended (sgfd-zoo correlation-study's sample, every state entry), a DomainClassifier trained
+    to the 0.9 threshold on them, then the weights of each batch of 128. Reported: the mean |r| between the
+    parameter and the other features, its reduction, and ESS / n, over the batches (mean and worst)."""
+    sample, z_all, classifier, others, order = real_states(env_id, steps_per_domain)
     rows = []
     for name, kwargs in STATE_SETTINGS:
         before, reductions, ess = [], [], []
@@ -367,14 +374,7 @@ def strength_table(cases: list[Case]) -> None:
 def strength_state_table(env_id: str, steps_per_domain: int = 1000, n_batches: int = 12) -> None:
     """The strength curve on real states (as ``state_table``: random-action states of the training domains, the
     varied parameter's |r| with the other features), the first ``n_batches`` batches of 128."""
-    with gym.make(env_id, obs_type="state") as env:
-        n_state = len(state_names(env, env_id))
-    sample = collect_states(env_id, steps_per_domain=steps_per_domain, n_state_features=n_state)
-    z_all, domains = standardised_sample(sample)
-    generator = torch.Generator().manual_seed(0)
-    classifier, _ = correlation_classifier(z_all, domains, int(domains.max()) + 1, N_BATCH, generator)
-    others = [column for column in range(z_all.shape[1]) if column != sample.changed]
-    order = torch.randperm(len(z_all), generator=generator)
+    sample, z_all, classifier, others, order = real_states(env_id, steps_per_domain)
     chunks = [z_all[order[i * N_BATCH : (i + 1) * N_BATCH]] for i in range(len(z_all) // N_BATCH)]
 
     def correlation_of(z: Tensor) -> Callable[[Tensor], float]:
