@@ -77,6 +77,7 @@ TINY = dict(learning_starts=50, batch_size=16, seed=0, policy_kwargs=dict(net_ar
 
 @pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("reading", ["paper", "official"])
+@pytest.mark.slow
 def test_a_model_trained_on_a_device_loads_on_the_cpu_and_back(device, reading, tmp_path):
     # its update captured on CUDA (on the CPU the same path without graphs), then eager on the CPU, then captured
     # again: saved from either way, it trains on in the other
@@ -115,6 +116,7 @@ def tensors_of(model) -> dict[str, th.Tensor]:
 
 
 @pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.slow
 def test_the_papers_agent_trains_with_every_tensor_on_its_device(device):
     from stable_baselines3.common.vec_env import VecFrameStack, VecTransposeImage
 

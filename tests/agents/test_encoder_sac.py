@@ -66,6 +66,7 @@ def test_encoder_sac_with_its_defaults_is_sb3_sac_exactly():
 
 
 @pytest.mark.parametrize("name", list(AGENTS))
+@pytest.mark.slow
 def test_with_every_coefficient_zero_each_agent_takes_sacs_steps_bit_for_bit(name):
     algo, policy, _, zero = AGENTS[name]
     buffer_kwargs = {"same_episode_negatives": True} if name == "ted" else {}
@@ -79,6 +80,7 @@ def test_with_every_coefficient_zero_each_agent_takes_sacs_steps_bit_for_bit(nam
 
 
 @pytest.mark.parametrize("name", list(AGENTS))
+@pytest.mark.slow
 def test_each_objective_trains_the_encoder_and_logs_its_losses(name):
     algo, policy, kwargs, _ = AGENTS[name]
     common = dict(TINY, policy_kwargs=policy_kwargs(policy))

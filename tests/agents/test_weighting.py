@@ -188,6 +188,7 @@ def test_reading_sets_the_defaults_and_each_stays_overridable():
         SGFD_SAC("MlpPolicy", state_env(), reading="offical", **TINY)
 
 
+@pytest.mark.slow
 def test_official_reading_weights_the_actor_from_the_first_update_and_trains_its_classifier_with_sgd(tmp_path):
     model = SGFD_SAC("MlpPolicy", state_env(), reading="official", classifier_start=300, classifier_interval=2, **TINY)
     start = [p.clone() for p in model.classifier.parameters()]

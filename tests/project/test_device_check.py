@@ -69,6 +69,7 @@ def test_every_part_runs_with_its_own_limit(smoke, monkeypatch):
         assert all(word in command_of[budget] for word in words), (name, command_of[budget])
 
 
+@pytest.mark.slow
 def test_a_check_stopped_from_outside_keeps_the_rows_it_measured(tmp_path):
     out = tmp_path / "device_check.md"
     process = subprocess.Popen([sys.executable, "bench/device_check.py", "--smoke", "--out", str(out)], cwd=REPO)

@@ -96,6 +96,7 @@ def test_the_environments_run_without_torch_or_stable_baselines3() -> None:
     assert loaded_after(code, {"torch", "stable_baselines3"}) == []
 
 
+@pytest.mark.slow
 def test_the_agents_import_without_the_zoo() -> None:
     zoo = {"ray", "rl_zoo3", "tensorboard", "rliable", "optuna"}
     result = run_without(zoo, "import sb3_sgfd")

@@ -144,6 +144,7 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return folder
 
 
+@pytest.mark.slow
 def test_a_run_evaluated_once_plots_as_a_visible_point(logs):
     curves = load_curves(logs)
     figure = draw_env(ENV_ID, curves[ENV_ID])
@@ -155,6 +156,7 @@ def test_a_run_evaluated_once_plots_as_a_visible_point(logs):
     assert code == 0 and f"{NAME}.png" in out
 
 
+@pytest.mark.slow
 def test_evaluate_names_unfinished_runs_with_the_command_that_continues_each_and_the_tables_it_replaces(logs):
     code, out, err = zoo(["evaluate", "-f", str(logs), "--n-episodes", "1", "--bootstrap-reps", "100"])
     assert code == 0, err

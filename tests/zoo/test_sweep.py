@@ -500,6 +500,7 @@ print(json.dumps({"nodes": nodes, "listening": listening}))
 """
 
 
+@pytest.mark.slow
 def test_a_local_sweeps_ray_listens_on_loopback_only() -> None:
     # In a process of its own, as `sgfd-zoo sweep` runs, without the tests' setting (conftest.py): the zoo's own
     # environment for Ray, set before Ray is imported, binds the instance to loopback.

@@ -23,6 +23,9 @@ import sgfd_envs
 from sgfd_cli import main as zoo_main
 from sgfd_zoo.runs.folders import RunFolder, read_yaml
 
+# Every test here takes a run trained for the module (about 15 s a worker): not the edit loop's.
+pytestmark = pytest.mark.slow
+
 ENV_ID = "SGFD/MT-walker-walk-v0"
 NAME = "SGFD-MT-walker-walk-v0"
 # 2000 steps of 4 sub-envs: each finishes one 500-step episode (its monitor file has a row); two evaluations of two

@@ -243,6 +243,7 @@ def test_no_write_follows_a_link(
     assert victim.read_text() == "precious\n" and sorted(victim.parent.iterdir()) == [victim]
 
 
+@pytest.mark.slow
 def test_a_record_copies_no_link_no_secret_and_no_absolute_path(tmp_path: Path, victim: Path) -> None:
     from stable_baselines3 import SAC
 

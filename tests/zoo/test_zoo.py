@@ -96,6 +96,7 @@ def test_train_both_algorithms_then_evaluate_and_plot(tmp_path):
 
 @pytest.mark.parametrize("quick", [False, True])
 @pytest.mark.parametrize("algo", sorted(SGFD_ALGOS))
+@pytest.mark.slow
 def test_every_yaml_entry_builds_its_model(algo, quick, tmp_path):
     register_algorithms()
     entries = yaml.safe_load(hyperparams_file(algo, quick).read_text())
