@@ -133,8 +133,155 @@ def test_importing_the_packages_installs_no_import_hook():
     code += "added += [h for h in sys.path_hooks if h not in before[1]]; "
     code += "print(sorted({getattr(f, '__module__', None) or type(f).__module__ for f in added}))"
     added = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
-    modules = eval(added.stdout.strip().splitlines()[-1])
-    assert not [module for module in modules if module.split(".")[0] in (*PACKAGES, "sgfd_cli")], modules
+    modules = ast.literal_eval(added.stdout.strip().splitlines()[-1])
+    assert not [module for module in modules if module.split(".")[0] in PACKAGES], modules
+
+
+def test_each_module_imports_from_its_floor_and_below():
+    graph = module_imports()
+    upward = sorted(f"{name} -> {dep}" for name, deps in graph.items() for dep in deps if floor(dep) > floor(name))
+    assert not upward, upward
+    assert floor("sgfd_cli.commands") > floor("sgfd_analysis.figures") > floor("sgfd_zoo.runs.folders")
+    # the command's reach into the figures and the zoo is an import the graph sees
+    assert {"sgfd_analysis.figures", "sgfd_analysis.correlation", "sgfd_zoo.training"} <= graph["sgfd_cli.commands"]
+
+
+def test_no_import_cycle_between_modules():
+    graph = module_imports()
+    # a package's __init__ importing its own submodules is the package, not a cycle
+    edges = {name: {dep for dep in deps if not name.startswith(f"{dep}.")} for name, deps in graph.items()}
+    assert len(graph) > 40 and "sgfd_zoo.runs.folders" in edges["sgfd_zoo.report.evaluate"]
+    cycles = []
+
+    def visit(name: str, path: list[str]) -> None:
+        for dep in edges[name]:
+            if dep in path:
+                cycles.append([*path[path.index(dep) :], dep])
+            elif dep not in seen:
+                seen.add(dep)
+                visit(dep, [*path, dep])
+
+    for start in edges:
+        seen = {start}
+        visit(start, [start])
+    assert not cycles, cycles[:3]
+
+
+#: what ``sgfd-zoo plot``, ``evaluate``'s tables, ``-h`` and the sweep's planning load: the command, the argument
+#: checks and the keys, the report wing, the run folders, records, files, checkpoints, locks and provenance, the
+#: sweep's plan and progress board
+REPORTING = [
+    "sgfd_cli.commands",
+    "sgfd_zoo.arguments",
+    "sgfd_zoo.algos",
+    "sgfd_zoo.report.evaluate",
+    "sgfd_zoo.report.plot",
+    "sgfd_zoo.report.statistics",
+    "sgfd_zoo.runs.folders",
+    "sgfd_zoo.runs.records",
+    "sgfd_zoo.runs.files",
+    "sgfd_zoo.runs.checkpoints",
+    "sgfd_zoo.runs.locks",
+    "sgfd_zoo.runs.provenance",
+    "sgfd_zoo.sweep.plan",
+    "sgfd_zoo.sweep.progress",
+]
+
+
+def test_reporting_imports_neither_torch_nor_rl_zoo3():
+    code = f"import sys, {', '.join(REPORTING)}; "
+    code += "print(sorted(m for m in ('torch', 'rl_zoo3', 'optuna', 'ray', 'stable_baselines3') if m in sys.modules))"
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
+    assert loaded.stdout.strip() == "[]"
+
+
+ALGORITHMS = ("sgfd", "ambs", "dbc", "ted", "sgqn")
+
+
+def code_names(tree: ast.AST) -> set[str]:
+    """The identifiers and the strings a module's code holds (its docstrings aside): what it can reach things by."""
+    docstrings = {
+        id(node.body[0].value)
+        for node in ast.walk(tree)
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+        and node.body
+        and isinstance(node.body[0], ast.Expr)
+        and isinstance(node.body[0].value, ast.Constant)
+    }
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Name):
+            names.add(node.id)
+        elif isinstance(node, ast.Attribute):
+            names.add(node.attr)
+        elif isinstance(node, ast.alias):
+            names |= {node.name, node.asname or node.name}
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
+            names.add(node.value)
+    return names
+
+
+def top_level_names(folder: Path) -> set[str]:
+    """The functions, classes and variables the modules under ``folder`` define at their top level (dunders aside)."""
+    names = set()
+    for path in folder.rglob("*.py"):
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+                names.add(node.name)
+            targets = node.targets if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
+            names |= {target.id for target in targets if isinstance(target, ast.Name)}
+    return {name for name in names if not name.startswith("__")}
+
+
+def test_common_knows_no_algorithm():
+    """sb3_sgfd.common is what the algorithms share: it imports none of them (not even lazily) and its code names
+    none of their modules or of what they define, so that an algorithm's folder can be copied or removed alone."""
+    graph = module_imports()
+    common = {name for name in graph if name == "sb3_sgfd.common" or name.startswith("sb3_sgfd.common.")}
+    assert "sb3_sgfd.common.validation" in common and "sb3_sgfd.common.buffers" in common
+    folders = [f"sb3_sgfd.{algorithm}" for algorithm in ALGORITHMS]
+    imports = sorted(
+        f"{name} imports {dep}"
+        for name in common
+        for dep in graph[name]
+        if any(dep == folder or dep.startswith(f"{folder}.") for folder in folders)
+    )
+    assert not imports, imports
+    # What the algorithms' modules define at their top level, less what common defines too
+    defined = {folder: top_level_names(REPO / "sb3_sgfd" / folder) for folder in ("common", *ALGORITHMS)}
+    algorithm_names = set().union(*(defined[folder] for folder in ALGORITHMS)) - defined["common"]
+    assert {"SGFD_SAC", "AMBSPolicy", "check_weights", "attribution_loss"} <= algorithm_names
+    named = []
+    for path in sorted((REPO / "sb3_sgfd" / "common").rglob("*.py")):
+        names = code_names(ast.parse(path.read_text()))
+        modules = {name for name in names if any(f"{folder}." in f"{name}." for folder in folders)}
+        named += [f"{path.relative_to(REPO)}: {name}" for name in sorted((names & algorithm_names) | modules)]
+    assert not named, named
+
+
+def _private_module(module: str) -> bool:
+    """Whether ``module`` is a private module of another package (a part of its path begins with ``_``)."""
+    return module.split(".")[0] not in PACKAGES and any(part.startswith("_") for part in module.split(".")[1:])
+
+
+def test_no_module_reaches_into_another_packages_internals() -> None:
+    """Other packages through their public names only: no private module (``ray._private``, ``ray._raylet``), no
+    ``sys.argv`` rewritten for another package's parser, no attribute of another package's module replaced."""
+    others = {"rl_zoo3", "ray", "stable_baselines3", "sb3_contrib", "gymnasium"}
+    reached = []
+    for name, tree in parsed_modules().items():
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                modules = [node.module, *(f"{node.module}.{alias.name}" for alias in node.names)]
+                reached += [f"{name} imports {module}" for module in modules if _private_module(module)]
+            elif isinstance(node, ast.Import):
+                reached += [f"{name} imports {a.name}" for a in node.names if _private_module(a.name)]
+            elif isinstance(node, ast.Assign) and "sys.argv" in map(ast.unparse, node.targets):
+                reached.append(f"{name} sets sys.argv")
+            elif isinstance(node, ast.Call) and ast.unparse(node.func) == "setattr" and node.args:
+                owner = ast.unparse(node.args[0])
+                reached += [f"{name} replaces an attribute of {owner}"] if owner.split(".")[0] in others else []
+    assert not reached, reached
 
 
 def project_classes() -> dict[str, list[str]]:
