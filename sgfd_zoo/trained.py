@@ -101,12 +101,12 @@ def find_agent(args: argparse.Namespace) -> TrainedAgent:
         raise ZooError(f"--exp-id {args.exp_id}: the zoo's runs are <EnvName>_<id> folders; give an id >= 1, or 0")
     run, model_path = _chosen_model(args)
     hyperparams = saved_settings(run.config_dir / "config.yml", required=True)
-    saved_args = saved_settings(run.config_dir / "args.yml", required=False)
+    saved_settings(run.config_dir / "args.yml", required=False)  # refused here if it cannot be read as data
     hyperparams = with_normalize_kwargs(hyperparams, args.norm_reward, run.config_dir / "config.yml")
-    env_kwargs = dict(hyperparams.pop("env_kwargs", None) or {})
-    if saved_args.get("env_kwargs") is not None:  # what rl-zoo3's enjoy takes: the command line's of training
-        env_kwargs = dict(saved_args["env_kwargs"])
-    env_kwargs.update(_command_line_env_kwargs(args))
+    hyperparams.pop("env_kwargs", None)
+    # What the run trained on, as the run folder reads it (its family among them: an earlier run plays its own
+    # envs, as evaluate does), then the command line's
+    env_kwargs = {**run.env_kwargs, **_command_line_env_kwargs(args)}
     return TrainedAgent(run, model_path, hyperparams, env_kwargs)
 
 

@@ -54,3 +54,25 @@ def test_a_run_started_now_records_its_family_and_is_read_back_on_it(tmp_path):
     scaled = RunFolder.at(tmp_path, "sac", "SGFD/MT-cheetah-run-v0", 2)
     scaled.record_start({"env_kwargs": {"robots": "scaled"}}, {}, None, step=0)
     assert RunFolder(scaled.path).args["env_family"] == {"robots": "scaled"}
+
+
+def test_enjoy_record_video_and_the_hub_play_a_run_of_version_0_1_0_on_its_family(tmp_path):
+    # The agent the trained-run commands choose takes its env settings from the run folder, as evaluate does: an
+    # earlier run is played on the scaled robots it trained on, and the command line's settings go on top.
+    from sgfd_zoo.enjoy import enjoy_parser
+    from sgfd_zoo.trained import find_agent
+
+    run = legacy_run(tmp_path)
+    args = enjoy_parser().parse_args(["--env", run.env_id, "-f", str(tmp_path / "logs"), "--load-last-checkpoint"])
+    assert (
+        find_agent(args).env_kwargs
+        == run.env_kwargs
+        == {
+            "obs_type": "state",
+            "observe_parameter": True,
+            "robots": "scaled",
+        }
+    )
+    args = enjoy_parser().parse_args(["--env", run.env_id, "-f", str(tmp_path / "logs"), "--split", "interpolation"])
+    args.load_last_checkpoint = True
+    assert find_agent(args).env_kwargs == {**run.env_kwargs, "split": "interpolation"}

@@ -94,7 +94,10 @@ def test_enjoy_hands_rl_zoo3_the_env_settings_it_read_and_plays_the_split_asked_
     code, out, err = watch(logs, "--no-render", "-n", "500", "--split", "extrapolation", "--seed", "3")
     assert code == 0, err
     assert f"Loading {logs}/sac/{NAME}_1/{NAME}.zip" in out
-    played = "env settings {'obs_type': 'state', 'observe_parameter': True, 'split': 'extrapolation'}"
+    # the run's settings, its recorded family among them, and the split asked for
+    played = (
+        "env settings {'robots': 'hipbmdp', 'obs_type': 'state', 'observe_parameter': True, 'split': 'extrapolation'}"
+    )
     assert "1 Episodes" in out and played in out, out
     code, _, err = watch(logs, "--no-render", "--split", "extrapolation", "--env-kwargs", "split:'train'")
     assert code == 2 and "--split extrapolation and --env-kwargs split:'train' disagree" in err[-1]
@@ -191,7 +194,9 @@ def test_a_dry_run_writes_exactly_what_would_be_pushed(pushed: Path, logs: Path)
     run = RunFolder.at(logs, "sac", ENV_ID, 1)
     assert sorted(path.name for path in pushed.iterdir()) == sorted(HUB_FILES)
     assert (pushed / f"sac-{NAME}.zip").read_bytes() == run.model_path.read_bytes()
-    assert yaml.safe_load((pushed / "env_kwargs.yml").read_text()) == {"obs_type": "state", "observe_parameter": True}
+    # the settings it trained with, its family among them, as evaluate plays it
+    trained_on = {"obs_type": "state", "observe_parameter": True, "robots": "hipbmdp"}
+    assert yaml.safe_load((pushed / "env_kwargs.yml").read_text()) == trained_on == run.env_kwargs
     assert yaml.safe_load((pushed / "args.yml").read_text())["log_folder"] == "logs"  # the folder's name only
     with zipfile.ZipFile(pushed / "train_eval_metrics.zip") as archive:
         metrics = set(archive.namelist())
