@@ -157,8 +157,7 @@ class EncoderSAC(SAC):
             objectives.make_representation(representation, arguments.get("representation_kwargs"))
 
     def _get_policy_from_name(self, policy_name: str) -> type[BasePolicy]:
-        # The objective's policies first: AMBS("CnnPolicy", env) is AMBS's AMBSPolicy, DBC("MlpPolicy", env) an MLP
-        # encoder it can train.
+        # The objective's policies first: AMBS("CnnPolicy", env) is AMBSPolicy, DBC("MlpPolicy", env) a trainable MLP
         objective = objectives.REPRESENTATIONS.get(self.representation or "")
         aliases = objective.policy_aliases if objective is not None else {}
         return aliases.get(policy_name) or super()._get_policy_from_name(policy_name)
@@ -182,8 +181,7 @@ class EncoderSAC(SAC):
             )
             self.ent_coef_optimizer = th.optim.Adam([self.log_ent_coef], lr=lr, betas=betas)  # type: ignore[arg-type]
         policies.check_encoder_setup(self, representation_model is not None)
-        # Augmentation and the objectives draw from generators of their own, seeded from the model's seed:
-        # SAC's random streams stay those of SB3's SAC.
+        # Augmentation and the objectives draw from generators of their own: SAC's random streams stay SB3's SAC's.
         seeds = derived_seeds(self.seed)
         self._augment_generator = th.Generator(device=self.device).manual_seed(seeds["augmentation"])
         self.representation_model = representation_model
@@ -191,11 +189,14 @@ class EncoderSAC(SAC):
             objectives.set_up_representation(representation_model, self, seeds["representation"])
         self._encoder_pairs, self._head_pairs = target_pairs(self.critic, self.critic_target)
         self._adopt_env_domains()
-        with th.random.fork_rng(devices=[]):  # SAC's random streams stay SB3's
-            self.weighting = self._make_weighting()
+        self.weighting = self._new_weighting()
+
+    def _new_weighting(self) -> SampleWeighting | None:
+        with th.random.fork_rng(devices=[]):  # wherever a weighting is made, SAC's random streams stay SB3's
+            return self._make_weighting()
 
     def _make_weighting(self) -> SampleWeighting | None:
-        """The sample weighting of the losses (called once the SAC model exists); none here: SAC's losses."""
+        """The sample weighting of the losses (made once the SAC model exists); none here: SAC's losses."""
         return None
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:

@@ -73,6 +73,18 @@ def test_sgfd_refuses_in_one_line_more_domains_than_its_classifier_has_classes(t
         SGFD_SAC.load(tmp_path / "model", env=pendulum(3))
 
 
+def test_sgfd_given_envs_of_more_domains_makes_its_new_classifier_off_sacs_random_stream():
+    # Before its classifier trains, envs with more domains give it a new classifier (and weighting), drawn from a
+    # fork of the CPU generator as at construction: SAC's random stream is where SB3's SAC would have it.
+    model = SGFD_SAC("MlpPolicy", pendulum(2), policy_kwargs=SMALL_NET, **TINY)
+    before = model.weighting
+    state = th.get_rng_state()
+    model.env = pendulum(3)  # what set_env or load_replay_buffer hand it, then check
+    model._adopt_env_domains()
+    assert model.weighting is not before and model.n_domains == 3
+    assert th.equal(th.get_rng_state(), state)
+
+
 @pytest.mark.parametrize("name", list(AGENTS))
 def test_get_and_set_parameters_round_trip_with_tensors_only(name):
     model = AGENTS[name](pendulum(2)).learn(80)
