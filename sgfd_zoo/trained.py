@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from sgfd_zoo.algos import SGFD_ALGOS
 from sgfd_zoo.arguments import ZooError, check_key_values
+from sgfd_zoo.config_checks import first_line
 from sgfd_zoo.runs.folders import RunFolder, read_yaml, runs_by_id, select_run
 from sgfd_zoo.runs.safe import RefusedFile, hyperparameter_problem, literal_expression
 
@@ -254,10 +255,6 @@ def _mismatch(error: Exception) -> ZooError:
         "the env does not give the observations the agent was trained on (leave out --env-kwargs that change "
         f"obs_type, image_size or observe_parameter; split and domain are fine): {first_line(error)}"
     )
-
-
-def first_line(error: BaseException) -> str:
-    return (str(error).strip().splitlines() or [type(error).__name__])[0]
 
 
 def display_available() -> bool:

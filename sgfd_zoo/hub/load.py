@@ -20,13 +20,14 @@ from pathlib import Path
 
 from sgfd_zoo.algos import SGFD_ALGOS
 from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_env_id
+from sgfd_zoo.config_checks import first_line
 from sgfd_zoo.hub import ARGS, CONFIG, ENV_KWARGS, METRICS, VEC_NORMALIZE, model_file, repository_id
 from sgfd_zoo.hub.push import METRIC_FILES
 from sgfd_zoo.runs.files import atomic_write
 from sgfd_zoo.runs.folders import RunFolder, env_name, mark_finished
 from sgfd_zoo.runs.locks import claim_new_run
 from sgfd_zoo.runs.safe import plain_name
-from sgfd_zoo.trained import first_line, saved_settings
+from sgfd_zoo.trained import saved_settings
 
 #: The largest metric file taken out of ``train_eval_metrics.zip``, inflated (a run's logs are megabytes)
 MAX_METRIC_BYTES = 256 * 2**20

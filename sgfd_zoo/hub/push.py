@@ -23,6 +23,7 @@ import yaml
 
 import sgfd_envs
 from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_at_least
+from sgfd_zoo.config_checks import first_line
 from sgfd_zoo.hub import (
     ARGS,
     CARD,
@@ -36,7 +37,7 @@ from sgfd_zoo.hub import (
     repository_id,
 )
 from sgfd_zoo.runs.safe import redact_values
-from sgfd_zoo.trained import TrainedAgent, find_agent, first_line, saved_settings
+from sgfd_zoo.trained import TrainedAgent, find_agent, saved_settings
 
 #: What of a run folder goes into ``train_eval_metrics.zip`` (rl-zoo3 puts its evaluations.npz and csv files there)
 METRIC_FILES = ("evaluations.npz", "evaluations_*.npz", "*.monitor.csv", "progress*.csv")
