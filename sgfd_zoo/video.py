@@ -9,9 +9,6 @@ colours or morphology, as the agent sees it), scaled up without smoothing, and e
 from __future__ import annotations
 
 import itertools
-import os
-import shutil
-import tempfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -19,8 +16,7 @@ from typing import Any
 import numpy as np
 
 from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_at_least, import_gym_packages
-from sgfd_zoo.runs.files import atomic_write
-from sgfd_zoo.runs.safe import refuse_links
+from sgfd_zoo.runs.safe import make_folder, write_file
 from sgfd_zoo.trained import TrainedAgent, add_agent_options, find_agent, load_model, make_env
 
 
@@ -99,11 +95,11 @@ def record_video(
         model = load_model(agent, env, device, seed)
         if fps is None:
             fps = int(env.get_attr("metadata", [0])[0].get("render_fps", 25))
-        if root is not None:
-            refuse_links(root, path)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        if root is None:  # the user's own path
+            path.parent.mkdir(parents=True, exist_ok=True)
+        make_folder(root or path.parent, path.parent)
         frames = played_frames(model, env, n_steps, deterministic, scale)
-        atomic_write(path, lambda tmp: encoded_into(tmp, frames, fps))
+        write_file(root or path.parent, path, lambda tmp: write_mp4(tmp, frames, fps))
     finally:
         env.close()
     return path
@@ -125,16 +121,6 @@ def _scaled(frame: np.ndarray | None, scale: int) -> np.ndarray:
     if frame is None:
         raise ZooError("the env gives no frame to record (its render_mode is not rgb_array)")
     return np.repeat(np.repeat(np.asarray(frame, dtype=np.uint8), scale, axis=0), scale, axis=1)
-
-
-def encoded_into(path: str, frames: Iterator[np.ndarray], fps: int) -> None:
-    """``frames`` as an mp4 at ``path``, a path that may hold only for this process (the safe writer's, reached
-    through a held folder descriptor): ffmpeg, another process, encodes into a private temporary folder of its own,
-    and the file is copied to ``path`` from there."""
-    with tempfile.TemporaryDirectory(prefix="sgfd-zoo-video-") as folder:
-        encoded = os.path.join(folder, "video.mp4")
-        write_mp4(encoded, frames, fps)
-        shutil.copyfile(encoded, path)
 
 
 def write_mp4(path: str, frames: Iterator[np.ndarray], fps: int) -> None:

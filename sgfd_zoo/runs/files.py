@@ -38,8 +38,8 @@ from sgfd_zoo.runs.bounded import (
 )
 
 TMP_PREFIX = ".tmp-"
-#: Where Linux shows a process's open descriptors as paths: a writer reaches its file through the held folder.
-PROC_FD = Path("/proc/self/fd")
+#: Where Linux shows the processes' open descriptors as paths: a writer reaches its file through the held folder.
+PROC = Path("/proc")
 
 
 class FileWriteError(ZooError):
@@ -179,8 +179,9 @@ def held_folder(root: Path, folder: Path | None = None, create: bool = False) ->
 
 def _through(folder: int, name: str, path: Path) -> Path:
     """The path by which a writer reaches ``name`` inside the held ``folder`` (``path`` where the system shows no
-    descriptors as paths)."""
-    return PROC_FD / str(folder) / name if PROC_FD.is_dir() else path
+    descriptors as paths): by this process's id, not ``self``, so that a program it starts (ffmpeg) reaches it too."""
+    descriptors = PROC / str(os.getpid()) / "fd"
+    return descriptors / str(folder) / name if descriptors.is_dir() else path
 
 
 def atomic_write(path: Path, write: Callable[[str], object]) -> StoredFile:
