@@ -428,7 +428,7 @@ class EncoderSAC(SAC):
         """The update's runner for this ``train`` call (made afresh for another device or ``compile_update``)."""
         if not self._update.fits(self.device, self.compile_update):
             self._update = self._new_runner(self.device, self._n_updates)
-        self._update.start(self._update_optimizers(), self._n_updates)
+        self._update.start(self._update_optimizers, self._n_updates)
         return self._update
 
     def _new_runner(self, device: th.device, n_updates: int = 0) -> UpdateRunner:

@@ -93,11 +93,11 @@ class UpdateRunner:
         """A replay batch through the static inputs of captured pieces (as it is otherwise)."""
         return self.pieces.inputs(prefix, values)
 
-    def start(self, optimizers: Sequence[th.optim.Optimizer], n_updates: int) -> None:
-        """Before a ``train`` call's steps: the optimisers set up (once, and again after :meth:`forget`), the figures
-        counting from update ``n_updates``."""
+    def start(self, optimizers: Callable[[], Sequence[th.optim.Optimizer]], n_updates: int) -> None:
+        """Before a ``train`` call's steps: the optimisers (``optimizers()``, listed only then) set up once, and again
+        after :meth:`forget`; the figures counting from update ``n_updates``."""
         if not self.optimizers_prepared:
-            prepare_optimizers(optimizers, self.capture)
+            prepare_optimizers(optimizers(), self.capture)
             self.optimizers_prepared = True
         self.figures.start(n_updates)
 

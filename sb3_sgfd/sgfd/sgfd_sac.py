@@ -170,7 +170,7 @@ class SGFD_SAC(EncoderSAC):
                 )
             self.n_domains = count
             if fresh and self.weighting is not None:
-                self.weighting = self._new_weighting()
+                self.weighting = self._new_weighting()  # type: ignore[assignment]  # this class's _make_weighting's
             elif fresh:
                 self._saved_weighting_replaced = True  # load: set_parameters skips the saved one
             elif self.weighting is not None:
