@@ -24,6 +24,9 @@ import numpy as np
 
 import sgfd_envs
 from sgfd_envs.demo import benchmark_observations, rollout
+from sgfd_envs.families import EARLIER_FAMILY
+from sgfd_envs.morphology import DEFAULT_MT_ROBOTS
+from sgfd_envs.registry import BACKGROUND, MORPHOLOGY
 
 DOCS = Path(__file__).resolve().parent
 STUDIES = DOCS.parent / "studies"
@@ -63,13 +66,9 @@ def grid(rows: list[list[np.ndarray]]) -> np.ndarray:
     return np.vstack(lines)
 
 
-# The background ids' families drawn: the paper's (the defaults) and the one before version 0.3.0.
-BACKGROUND_FAMILIES: dict[str, dict[str, Any]] = {
-    "paper": {},
-    "earlier": dict(backgrounds="moving", compositing="matte", robots="dm_control", test_domains=4),
-}
-# The MT ids' families drawn: HiP-BMDP's robot files (the default) and this package's scaled robots.
-ROBOT_FAMILIES = ("hipbmdp", "scaled")
+# The families drawn: the paper's (the defaults) and the one before version 0.3.0 (sgfd_envs.families' table).
+BACKGROUND_FAMILIES: dict[str, dict[str, Any]] = {"paper": {}, "earlier": EARLIER_FAMILY[BACKGROUND]}
+ROBOT_FAMILIES = (DEFAULT_MT_ROBOTS, EARLIER_FAMILY[MORPHOLOGY]["robots"])
 
 
 def backgrounds() -> np.ndarray:
