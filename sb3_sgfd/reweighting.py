@@ -1,20 +1,6 @@
 """SGFD's weights as functions of tensors (random Fourier features, the decorrelation loss, the weight solver), by
-the path earlier code imports them from; they live in :mod:`sb3_sgfd.sgfd.functional`."""
+the path earlier code imports them from; they live in :mod:`sb3_sgfd.sgfd.functional`, whose public names (its
+``__all__``) this module gives."""
 
-from sb3_sgfd.sgfd.functional import (
-    decorrelation_loss,
-    effective_sample_size,
-    learn_sample_weights,
-    loss_gradient,
-    random_fourier_features,
-    weighted_pearson,
-)
-
-__all__ = [
-    "decorrelation_loss",
-    "effective_sample_size",
-    "learn_sample_weights",
-    "loss_gradient",
-    "random_fourier_features",
-    "weighted_pearson",
-]
+from sb3_sgfd.sgfd.functional import *  # noqa: F403 (a re-export: the names of its __all__)
+from sb3_sgfd.sgfd.functional import __all__ as __all__

@@ -26,6 +26,19 @@ from torch.distributions import Normal
 
 from sb3_sgfd.common.observations import describe_space
 
+#: The policies and encoders a yaml file or a saved model names by ``sb3_sgfd.policies.<name>``
+__all__ = [
+    "CnnPolicy",
+    "DetachedEncoderActor",
+    "EncoderMlpPolicy",
+    "MlpEncoder",
+    "MlpPolicy",
+    "MultiInputPolicy",
+    "PixelEncoder",
+    "SGFDPolicy",
+    "SharedEncoderPolicy",
+]
+
 
 class PixelEncoder(BaseFeaturesExtractor):
     """

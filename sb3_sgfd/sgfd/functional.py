@@ -35,6 +35,19 @@ from sb3_sgfd.sgfd.decorrelation import (
     solve_weights,
 )
 
+__all__ = [
+    "classifier_accuracy",
+    "decorrelation_loss",
+    "effective_sample_size",
+    "feature_probabilities",
+    "learn_sample_weights",
+    "loss_gradient",
+    "random_fourier_features",
+    "saliency_map",
+    "train_classifier",
+    "weighted_pearson",
+]
+
 
 def random_fourier_features(z: Tensor, n_features: int = 5, generator: torch.Generator | None = None) -> Tensor:
     """Random Fourier features of each column of ``z``: sqrt(2) cos(omega z + psi) (paper section 4.1).
@@ -177,21 +190,10 @@ def learn_sample_weights(
     if memory is not None and not isinstance(memory, WeightMemory):
         raise ValueError(f"memory must be None or a WeightMemory, got {type(memory).__name__}")
     weights, loss_before, loss_after = solve_weights(
-        z,
-        feature_probs,
-        n_rff=n_rff,
-        iters=iters,
-        lr=lr,
-        momentum=momentum,
-        weight_decay=weight_decay,
-        use_rff=use_rff,
-        covariance=covariance,
-        ess_penalty=ess_penalty,
-        feature_std=feature_std,
-        memory=memory,
-        max_step=max_step,
-        generator=generator,
-    )
+        z, feature_probs, n_rff=n_rff, iters=iters, lr=lr, momentum=momentum, weight_decay=weight_decay,
+        use_rff=use_rff, covariance=covariance, ess_penalty=ess_penalty, feature_std=feature_std, memory=memory,
+        max_step=max_step, generator=generator,
+    )  # fmt: skip
     if not torch.isfinite(weights).all():
         raise RuntimeError("learn_sample_weights produced non-finite weights; lower lr")
     return (weights, loss_before.item(), loss_after.item()) if return_losses else weights

@@ -201,14 +201,15 @@ class SGFDSettings:
 class SolverSettings(TypedDict):
     """The keywords of the readings' weight solvers that the settings give (:meth:`SGFDSettings.solver_settings`)."""
 
-    n_rff: int
+    # In alphabetical order, as a TypedDict's keys have none of their own.
+    ess_penalty: float
     iters: int
     lr: float
-    momentum: float
-    weight_decay: float
-    ess_penalty: float
     max_step: float | None
+    momentum: float
+    n_rff: int
     use_rff: bool
+    weight_decay: float
 
 
 def setting_names() -> list[str]:
