@@ -19,7 +19,6 @@ Which source is which domain of a split (the seed banks, a user's folder) is :mo
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Protocol
@@ -276,16 +275,15 @@ class _FittedFiles:
         self, height: int, width: int, grayscale: bool, crop: bool, interpolation: int, halvings: int, argument: str
     ) -> None:
         self.height, self.width, self.grayscale = height, width, grayscale
+        self._crop, self._interpolation, self._halvings = crop, interpolation, halvings
         self._argument = argument
-        self._fit = functools.partial(
-            fit_frame,
-            height=height,
-            width=width,
-            grayscale=grayscale,
-            crop=crop,
-            interpolation=interpolation,
-            halvings=halvings,
-        )
+
+    def _fit(self, frame_bgr: np.ndarray) -> np.ndarray:
+        """A frame read from a file, fitted to this source's frames by :func:`fit_frame`."""
+        return fit_frame(
+            frame_bgr, self.height, self.width, self.grayscale, crop=self._crop, interpolation=self._interpolation,
+            halvings=self._halvings,
+        )  # fmt: skip
 
 
 class VideoBackground(_FittedFiles):
