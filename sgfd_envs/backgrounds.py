@@ -299,19 +299,12 @@ class VideoBackground(_FittedFiles):
     ``crop``, ``interpolation``, ``halvings`` and ``argument``: as :class:`ImageBackground`'s.
     """
 
+    # The fitting keywords on one line, as ImageBackground's (documented there).
     def __init__(
-        self,
-        path: str | Path,
-        height: int,
-        width: int,
-        frame_budget: int | None = DEFAULT_FRAME_BUDGET,
+        self, path: str | Path, height: int, width: int, frame_budget: int | None = DEFAULT_FRAME_BUDGET,
         grayscale: bool = False,
-        *,
-        crop: bool = True,
-        interpolation: int = cv2.INTER_AREA,
-        halvings: int = 0,
-        argument: str = "background_dir",
-    ) -> None:
+        *, crop: bool = True, interpolation: int = cv2.INTER_AREA, halvings: int = 0, argument: str = "background_dir",
+    ) -> None:  # fmt: skip
         super().__init__(height, width, grayscale, crop, interpolation, halvings, argument)
         self.path = str(path)
         self.frame_budget = frame_budget
@@ -358,18 +351,11 @@ class ImageBackground(_FittedFiles):
     :param argument: the keyword argument that gave the files, for messages
     """
 
+    # The fitting keywords (fit_frame's, and the argument named in messages) on one line, as VideoBackground's.
     def __init__(
-        self,
-        paths: str | Path | Sequence[str | Path],
-        height: int,
-        width: int,
-        grayscale: bool = False,
-        *,
-        crop: bool = True,
-        interpolation: int = cv2.INTER_AREA,
-        halvings: int = 0,
-        argument: str = "background_dir",
-    ) -> None:
+        self, paths: str | Path | Sequence[str | Path], height: int, width: int, grayscale: bool = False,
+        *, crop: bool = True, interpolation: int = cv2.INTER_AREA, halvings: int = 0, argument: str = "background_dir",
+    ) -> None:  # fmt: skip
         super().__init__(height, width, grayscale, crop, interpolation, halvings, argument)
         self.paths = (Path(paths),) if isinstance(paths, (str, Path)) else tuple(Path(p) for p in paths)
         self._frames: dict[int, np.ndarray] = {}
