@@ -15,16 +15,11 @@ class DomainBatch(NamedTuple):
     tied: list[int]  # columns that depend on it
 
 
+# The batch's sizes, then its noise and column order.
 def make_domain_batch(
-    n: int = 128,
-    d: int = 50,
-    n_domains: int = 4,
-    n_tied: int = 4,
-    domain_noise: float = 0.15,
-    tie_noise: float = 0.8,
-    seed: int = 0,
-    shuffle: bool = True,
-) -> DomainBatch:
+    n: int = 128, d: int = 50, n_domains: int = 4, n_tied: int = 4,
+    domain_noise: float = 0.15, tie_noise: float = 0.8, seed: int = 0, shuffle: bool = True,
+) -> DomainBatch:  # fmt: skip
     """A batch from ``n_domains`` equally-sized domains.
 
     One feature s is a domain offset plus noise (the domains are almost separable on it); ``n_tied``

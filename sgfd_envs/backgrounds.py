@@ -19,7 +19,6 @@ Which source is which domain of a split (the seed banks, a user's folder) is :mo
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Protocol
@@ -276,16 +275,15 @@ class _FittedFiles:
         self, height: int, width: int, grayscale: bool, crop: bool, interpolation: int, halvings: int, argument: str
     ) -> None:
         self.height, self.width, self.grayscale = height, width, grayscale
+        self._crop, self._interpolation, self._halvings = crop, interpolation, halvings
         self._argument = argument
-        self._fit = functools.partial(
-            fit_frame,
-            height=height,
-            width=width,
-            grayscale=grayscale,
-            crop=crop,
-            interpolation=interpolation,
-            halvings=halvings,
-        )
+
+    def _fit(self, frame_bgr: np.ndarray) -> np.ndarray:
+        """A frame read from a file, fitted to this source's frames by :func:`fit_frame`."""
+        return fit_frame(
+            frame_bgr, self.height, self.width, self.grayscale, crop=self._crop, interpolation=self._interpolation,
+            halvings=self._halvings,
+        )  # fmt: skip
 
 
 class VideoBackground(_FittedFiles):
@@ -301,19 +299,12 @@ class VideoBackground(_FittedFiles):
     ``crop``, ``interpolation``, ``halvings`` and ``argument``: as :class:`ImageBackground`'s.
     """
 
+    # The fitting keywords on one line, as ImageBackground's (documented there).
     def __init__(
-        self,
-        path: str | Path,
-        height: int,
-        width: int,
-        frame_budget: int | None = DEFAULT_FRAME_BUDGET,
+        self, path: str | Path, height: int, width: int, frame_budget: int | None = DEFAULT_FRAME_BUDGET,
         grayscale: bool = False,
-        *,
-        crop: bool = True,
-        interpolation: int = cv2.INTER_AREA,
-        halvings: int = 0,
-        argument: str = "background_dir",
-    ) -> None:
+        *, crop: bool = True, interpolation: int = cv2.INTER_AREA, halvings: int = 0, argument: str = "background_dir",
+    ) -> None:  # fmt: skip
         super().__init__(height, width, grayscale, crop, interpolation, halvings, argument)
         self.path = str(path)
         self.frame_budget = frame_budget
@@ -360,18 +351,11 @@ class ImageBackground(_FittedFiles):
     :param argument: the keyword argument that gave the files, for messages
     """
 
+    # The fitting keywords (fit_frame's, and the argument named in messages) on one line, as VideoBackground's.
     def __init__(
-        self,
-        paths: str | Path | Sequence[str | Path],
-        height: int,
-        width: int,
-        grayscale: bool = False,
-        *,
-        crop: bool = True,
-        interpolation: int = cv2.INTER_AREA,
-        halvings: int = 0,
-        argument: str = "background_dir",
-    ) -> None:
+        self, paths: str | Path | Sequence[str | Path], height: int, width: int, grayscale: bool = False,
+        *, crop: bool = True, interpolation: int = cv2.INTER_AREA, halvings: int = 0, argument: str = "background_dir",
+    ) -> None:  # fmt: skip
         super().__init__(height, width, grayscale, crop, interpolation, halvings, argument)
         self.paths = (Path(paths),) if isinstance(paths, (str, Path)) else tuple(Path(p) for p in paths)
         self._frames: dict[int, np.ndarray] = {}

@@ -65,6 +65,7 @@ from sgfd_envs.registry import (
     MORPHOLOGY,
     check_benchmark_split,
     entry_of_kind,
+    task_entry,
 )
 from sgfd_envs.rendering import check_render
 from sgfd_envs.wrappers import FrameLag, ObserveParameter, check_observe_parameter, scale_to_unit
@@ -274,13 +275,16 @@ def make_dmcgb_env(
     render: str = "benchmark",
     texture_cache_mb: int = DEFAULT_TEXTURE_CACHE_MB,
 ) -> DMCEnv:
-    """A DMC-GB env (entry point of the ``DMCGB/`` ids; see :mod:`sgfd_envs.benchmarks.dmcgb`).
+    """A DMC-GB or a DMC-GB2 env, as the id's prefix says (entry point of the ``DMCGB/`` and ``DMCGB2/`` ids; see
+    :mod:`sgfd_envs.benchmarks.dmcgb` and :mod:`sgfd_envs.benchmarks.dmcgb2`). The two take the same keywords.
 
-    :param env_id: one of ``BENCHMARK_IDS["DMCGB"]``
-    :param split: ``"train"`` (dm_control's task) or a test mode: ``"color_easy"``, ``"color_hard"``,
-        ``"video_easy"``, ``"video_hard"``, ``"distracting_cs"``
+    :param env_id: one of ``BENCHMARK_IDS["DMCGB"]`` or ``BENCHMARK_IDS["DMCGB2"]``
+    :param split: ``"train"`` (dm_control's task), ``"distracting_cs"`` (DMC-GB's DCS test, which DMC-GB2 tests on
+        too) or a test mode: DMC-GB's ``"color_easy"``, ``"color_hard"``, ``"video_easy"``, ``"video_hard"``;
+        DMC-GB2's twelve (``"rotate_easy"``, ..., ``"color_video_hard"``)
     :param domain: 0 (each split is one distribution)
-    :param data_dir: DMC-GB's ``src/env/data`` folder (colour sets and clips); None: procedural stand-ins
+    :param data_dir: DMC-GB's ``src/env/data`` folder (colour sets and clips; DMC-GB2's ``envs/dmcgb/data`` holds
+        the same files); None: procedural stand-ins
     :param intensity: ``distracting_cs``'s intensity, one of 0.025, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5
     :param background_dir: DAVIS's ``JPEGImages/480p`` folder for ``distracting_cs``; None: procedural stand-ins
     :param obs_type: ``"pixels"`` or ``"state"``
@@ -290,65 +294,34 @@ def make_dmcgb_env(
     :param texture_cache_mb: ``distracting_cs``: GPU memory (MiB) the sky's frames of the episode's video may take,
         each sent to the GPU once (past it, a frame is sent at each view; 0: no cache)
     """
-    entry = entry_of_kind(env_id, DMCGB)
+    # Any id of neither benchmark: a ValueError listing DMC-GB's ids.
+    entry = entry_of_kind(env_id, DMCGB2 if task_entry(env_id).variation == DMCGB2 else DMCGB)
     common = _checked_common(env_id, split, obs_type, image_size, render_mode, render, texture_cache_mb)
+    is_dmcgb2 = entry.variation == DMCGB2
+
+    def make_mode(physics: Physics) -> Distraction:
+        if is_dmcgb2:
+            return dmcgb2.DMCGB2Distraction(physics, entry.robot, split, image_size, data_dir, render)
+        return dmcgb.DMCGBDistraction(physics, split, image_size, data_dir)
+
+    # DMC-GB2 resizes distracting_cs's clips as it resizes its own; DMC-GB, by distracting_cs's default.
+    clip_resize = {"interpolation": dmcgb2.RESIZE} if is_dmcgb2 else {}
     make_distraction = dmcgb.family_distraction(
-        entry.robot, split, intensity, data_dir, background_dir, image_size, render,
-        lambda physics: dmcgb.DMCGBDistraction(physics, split, image_size, data_dir),
-        texture_cache_mb=texture_cache_mb,
-    )  # fmt: skip
-    return _benchmark_env(
-        env_id, DMCGB, split, domain, common, make_distraction, data_dir=data_dir, background_dir=background_dir
-    )
-
-
-@refusing_other_kwargs
-def make_dmcgb2_env(
-    env_id: str,
-    split: str = "train",
-    domain: int = 0,
-    *,
-    data_dir: str | Path | None = None,
-    intensity: float | None = None,
-    background_dir: str | Path | None = None,
-    obs_type: str = "pixels",
-    image_size: int = 84,
-    render_mode: str | None = None,
-    render: str = "benchmark",
-    texture_cache_mb: int = DEFAULT_TEXTURE_CACHE_MB,
-) -> DMCEnv:
-    """A DMC-GB2 env (entry point of the ``DMCGB2/`` ids; see :mod:`sgfd_envs.benchmarks.dmcgb2`).
-
-    :param env_id: one of ``BENCHMARK_IDS["DMCGB2"]``
-    :param split: ``"train"``, one of the twelve test modes (``"rotate_easy"``, ..., ``"color_video_hard"``) or
-        ``"distracting_cs"`` (its DCS test)
-    :param domain: 0 (each split is one distribution)
-    :param data_dir: DMC-GB's data folder (DMC-GB2's ``envs/dmcgb/data`` holds the same files); None:
-        procedural stand-ins
-    :param intensity: ``distracting_cs``'s intensity, one of 0.025, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5
-    :param background_dir: DAVIS's ``JPEGImages/480p`` folder for ``distracting_cs``; None: procedural stand-ins
-    :param obs_type: ``"pixels"`` or ``"state"``
-    :param image_size: height and width of the pixel observation
-    :param render_mode: None or ``"rgb_array"``
-    :param render: ``"benchmark"`` (dm_control's render: shadows, reflections, multisampling) or ``"fast"``
-    :param texture_cache_mb: ``distracting_cs``: GPU memory (MiB) the sky's frames of the episode's video may take,
-        each sent to the GPU once (past it, a frame is sent at each view; 0: no cache)
-    """
-    entry = entry_of_kind(env_id, DMCGB2)
-    common = _checked_common(env_id, split, obs_type, image_size, render_mode, render, texture_cache_mb)
-    make_distraction = dmcgb.family_distraction(
-        entry.robot, split, intensity, data_dir, background_dir, image_size, render,
-        lambda physics: dmcgb2.DMCGB2Distraction(physics, entry.robot, split, image_size, data_dir, render),
-        interpolation=dmcgb2.RESIZE, texture_cache_mb=texture_cache_mb,
+        entry.robot, split, intensity, data_dir, background_dir, image_size, render, make_mode,
+        texture_cache_mb=texture_cache_mb, **clip_resize,
     )  # fmt: skip
     dm_env = None
-    if "video" in split:
+    if is_dmcgb2 and "video" in split:
         side = dmcgb2.projector_texture_side(image_size, render)
         dm_env = dmcgb2.load_with_projector(entry.robot, entry.task, side)
     return _benchmark_env(
-        env_id, DMCGB2, split, domain, common, make_distraction, dm_env, data_dir=data_dir,
+        env_id, entry.variation, split, domain, common, make_distraction, dm_env, data_dir=data_dir,
         background_dir=background_dir,
     )  # fmt: skip
+
+
+# DMC-GB2's builder by its earlier name: DMC-GB's builder serves both benchmarks.
+make_dmcgb2_env = make_dmcgb_env
 
 
 @refusing_other_kwargs

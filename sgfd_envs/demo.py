@@ -43,13 +43,7 @@ def rollout(env_id: str, steps: int = 30, seed: int = 0, **env_kwargs: Any) -> t
 
 
 def observe(
-    env_id: str,
-    split: str,
-    steps: int = 30,
-    seed: int = 0,
-    image_size: int = 84,
-    domain: int = 0,
-    **env_kwargs: Any,
+    env_id: str, split: str, steps: int = 30, seed: int = 0, image_size: int = 84, domain: int = 0, **env_kwargs: Any
 ) -> tuple[np.ndarray, str]:
     """The pixel observation of a domain of a split after ``steps`` random actions, and a caption.
 

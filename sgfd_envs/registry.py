@@ -51,13 +51,14 @@ SPLITS: dict[str, tuple[str, ...]] = {
 ParameterTable = dict[str, tuple[str, tuple[float, ...]]]
 _DISTRACTING_CS: ParameterTable = {facts.DISTRACTING_CS: ("intensity", facts.INTENSITIES)}
 PARAMETRIC_SPLITS: dict[str, ParameterTable] = {DMCGB: _DISTRACTING_CS, DMCGB2: _DISTRACTING_CS}
-# Each kind's builder in sgfd_envs.builders: its ids' entry point (imported by gym.make, not by gym.spec).
+# Each kind's builder in sgfd_envs.builders: its ids' entry point (imported by gym.make, not by gym.spec). DMC-GB's
+# builder makes DMC-GB2's envs too.
 BUILDERS = {
     BACKGROUND: "make_background_env",
     MORPHOLOGY: "make_morphology_env",
     CAUSAL_WORLD: "make_causal_world_env",
     DMCGB: "make_dmcgb_env",
-    DMCGB2: "make_dmcgb2_env",
+    DMCGB2: "make_dmcgb_env",
     DCS: "make_dcs_env",
 }
 

@@ -172,15 +172,11 @@ class DMCGB2Distraction:
     :param render: ``"benchmark"`` or ``"fast"``: the screen texture's side and resize (module docstring)
     """
 
+    # The env's parameters, then the mode's.
     def __init__(
-        self,
-        physics: Physics,
-        domain: str,
-        mode: str,
-        image_size: int,
-        data_dir: str | Path | None,
-        render: str = "benchmark",
-    ) -> None:
+        self, physics: Physics, domain: str,
+        mode: str, image_size: int, data_dir: str | Path | None, render: str = "benchmark",
+    ) -> None:  # fmt: skip
         parts, difficulty = split_mode(mode)
         self.mode = mode
         self._physics = physics
