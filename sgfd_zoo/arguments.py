@@ -100,6 +100,38 @@ class ZooArgumentParser(argparse.ArgumentParser):
         raise ZooError(f"{message}{whole} (see {self.prog} -h)")
 
 
+#: What ``sgfd-zoo COMMAND -h`` says above the options and below them (description, epilog), for the commands whose
+#: parser :func:`command_parser` makes
+COMMAND_HELP: dict[str, tuple[str, str]] = {
+    "enjoy": (
+        "Watch a trained agent (or roll it out without a window: --no-render) on any split and domain; "
+        "each episode's return and length are printed. A video: sgfd-zoo record-video.",
+        "Every option has its whole name: an abbreviation is refused.",
+    ),
+    "record-video": (
+        "Write an mp4 of a trained agent on any split and domain (imageio's ffmpeg; no system ffmpeg).",
+        "e.g. sgfd-zoo record-video --algo sgfd_sac --env SGFD/MT-walker-walk-v0 -f logs --split extrapolation",
+    ),
+    "load-from-hub": (
+        "Copy a run from the Hugging Face Hub (or a local copy of its repository) into a new run folder "
+        "of a log folder, where enjoy, record-video and evaluate find it.",
+        "The model zip holds pickles (SB3's format): load runs only from people whose code you would run.",
+    ),
+    "push-to-hub": (
+        "Push a finished run to the Hugging Face Hub: its model, hyperparameters, the evaluation of every "
+        "split with its domains (model card and metadata) and a video. Log in first (hf auth login) or set HF_TOKEN.",
+        "e.g. sgfd-zoo push-to-hub --algo sgfd_sac --env SGFD/MT-walker-walk-v0 -f logs -orga my-lab",
+    ),
+}
+
+
+def command_parser(command: str) -> ZooArgumentParser:
+    """The parser of ``sgfd-zoo COMMAND``, with no option yet: its help's description and epilog are
+    :data:`COMMAND_HELP`'s."""
+    description, epilog = COMMAND_HELP[command]
+    return ZooArgumentParser(prog=f"sgfd-zoo {command}", description=description, epilog=epilog)
+
+
 def import_gym_packages(modules: Sequence[str]) -> None:
     """Import the modules a user names with ``--gym-packages`` (their own env packages, which register ids on
     import), as rl-zoo3's scripts do; a module that is not there is named in one line.

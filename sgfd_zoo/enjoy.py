@@ -14,18 +14,20 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_env_id, check_key_values, import_gym_packages
+from sgfd_zoo.arguments import (
+    ZooArgumentParser,
+    ZooError,
+    check_env_id,
+    check_key_values,
+    command_parser,
+    import_gym_packages,
+)
 from sgfd_zoo.trained import TrainedAgent, add_agent_options, display_available, find_agent, load_model, make_env
 
 
 def enjoy_parser() -> ZooArgumentParser:
     """The options of ``sgfd-zoo enjoy``: rl-zoo3's enjoy's, and ``--split``, ``--domain``."""
-    parser = ZooArgumentParser(
-        prog="sgfd-zoo enjoy",
-        description="Watch a trained agent (or roll it out without a window: --no-render) on any split and domain; "
-        "each episode's return and length are printed. A video: sgfd-zoo record-video.",
-        epilog="Every option has its whole name: an abbreviation is refused.",
-    )
+    parser = command_parser("enjoy")
     add_agent_options(parser)
     rollout = parser.add_argument_group("the rollout")
     rollout.add_argument("-n", "--n-timesteps", type=int, default=1000, metavar="STEPS", help="steps (default: 1000)")

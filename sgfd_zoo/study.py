@@ -81,16 +81,17 @@ DIAGNOSTICS = (
 )
 
 
-#: The type of each key of a spec, as :func:`read_spec` checks it before reading its values.
-SPEC_TYPES: dict[str, tuple[type, str]] = {
-    "name": (str, "a plain name"),
-    "description": (str, "a line of text"),
-    "algos": (list, "a list of algorithm keys"),
-    "envs": (list, "a list of env ids"),
-    "seeds": (list, "a list of integers >= 0"),
-    "train": (list, "a list of flags and values"),
-    "n_episodes": (int, "an integer >= 1"),
-    "reference": (str, "one of its algos"),
+#: The type of each key of a spec, the type of its items where it is a list (None: not a list), and what it is
+#: said to be, as :func:`read_spec` checks them before reading its values.
+SPEC_TYPES: dict[str, tuple[type, type | tuple[type, ...] | None, str]] = {
+    "name": (str, None, "a plain name"),
+    "description": (str, None, "a line of text"),
+    "algos": (list, str, "a list of algorithm keys"),
+    "envs": (list, str, "a list of env ids"),
+    "seeds": (list, int, "a list of integers >= 0"),
+    "train": (list, (str, int, float), "a list of flags and values"),
+    "n_episodes": (int, None, "an integer >= 1"),
+    "reference": (str, None, "one of its algos"),
 }
 
 
@@ -135,14 +136,13 @@ def read_spec(path: Path) -> dict[str, Any]:
 def _check_spec_types(spec: dict[str, Any], path: Path) -> None:
     """A ZooError naming the key when a spec's value is not of its type (:data:`SPEC_TYPES`), or a list's item is
     not a plain value of its kind (``algos: [[...]]``)."""
-    items: dict[str, type | tuple[type, ...]] = {"algos": str, "envs": str, "seeds": int, "train": (str, int, float)}
-    for key, (kind, what) in SPEC_TYPES.items():
+    for key, (kind, item_kind, what) in SPEC_TYPES.items():
         value = spec.get(key)
         if value is None:
             continue
         wrong = not isinstance(value, kind) or isinstance(value, bool)
-        if not wrong and key in items:
-            wrong = not all(isinstance(item, items[key]) and not isinstance(item, bool) for item in value)
+        if not wrong and item_kind is not None:
+            wrong = not all(isinstance(item, item_kind) and not isinstance(item, bool) for item in value)
         if wrong:
             raise ZooError(f"SPEC {path}: {key} must be {what}, got {value!r}"[:400])
 

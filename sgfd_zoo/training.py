@@ -62,6 +62,46 @@ def key_values(flag: str, items: Sequence[str] | None) -> dict[str, Any] | None:
     return read.values
 
 
+# SGFDExperimentManager's keyword arguments that are the parsed options of the same name, as rl-zoo3's train passes
+# them, by what they set: the run, its output, its settings, the hyperparameter search (Optuna), the zoo's own
+RUN_OPTIONS = ("algo", "log_folder", "tensorboard_log", "n_timesteps", "eval_freq", "trained_agent", "seed", "device")
+OUTPUT_OPTIONS = ("log_interval", "save_replay_buffer", "verbose", "n_eval_envs")
+SETTINGS_OPTIONS = ("hyperparams", "env_kwargs", "eval_env_kwargs")
+SEARCH_OPTIONS = ("optimize_hyperparameters", "storage", "study_name", "n_trials", "max_total_trials", "n_jobs")
+SEARCH_SETUP_OPTIONS = ("sampler", "pruner", "optimization_log_path", "n_startup_trials", "n_evaluations", "trial_id")
+SEARCH_OUTPUT_OPTIONS = ("truncate_last_trajectory", "no_optim_plots")
+ZOO_OPTIONS = ("quick", "resume", "run_id", "classifier_start")
+SAME_NAMED_OPTIONS = (
+    *RUN_OPTIONS,
+    *OUTPUT_OPTIONS,
+    *SETTINGS_OPTIONS,
+    *SEARCH_OPTIONS,
+    *SEARCH_SETUP_OPTIONS,
+    *SEARCH_OUTPUT_OPTIONS,
+    *ZOO_OPTIONS,
+)
+#: SGFDExperimentManager's keyword arguments that are parsed options of another name: keyword -> option
+RENAMED_OPTIONS = {
+    "env_id": "env",
+    "n_eval_episodes": "eval_episodes",
+    "vec_env_type": "vec_env",
+    "config": "conf_file",
+    "show_progress": "progress",
+}
+
+
+def manager_arguments(args: argparse.Namespace) -> dict[str, Any]:
+    """SGFDExperimentManager's keyword arguments that the parsed options ``args`` give, as rl-zoo3's train passes
+    them (an unset ``--save-freq``: -1, and the zoo's default checkpoint interval)."""
+    arguments = {name: getattr(args, name) for name in SAME_NAMED_OPTIONS}
+    arguments.update({keyword: getattr(args, option) for keyword, option in RENAMED_OPTIONS.items()})
+    arguments["save_freq"] = -1 if args.save_freq is None else args.save_freq
+    arguments["default_save_freq"] = args.save_freq is None
+    arguments["uuid_str"] = f"_{uuid.uuid4()}" if args.uuid else ""
+    arguments["progress"] = False if args.no_progress else None
+    return arguments
+
+
 def train(
     argv: Sequence[str],
     optimize: bool = False,
@@ -123,52 +163,11 @@ def _run(
     zoo3 = rl_zoo3_arguments(args)
     manager = SGFDExperimentManager(
         zoo3,
-        args.algo,
-        args.env,
-        args.log_folder,
-        args.tensorboard_log,
-        args.n_timesteps,
-        args.eval_freq,
-        args.eval_episodes,
-        -1 if args.save_freq is None else args.save_freq,
-        args.hyperparams,
-        args.env_kwargs,
-        args.eval_env_kwargs,
-        args.trained_agent,
-        args.optimize_hyperparameters,
-        args.storage,
-        args.study_name,
-        args.n_trials,
-        args.max_total_trials,
-        args.n_jobs,
-        args.sampler,
-        args.pruner,
-        args.optimization_log_path,
-        n_startup_trials=args.n_startup_trials,
-        n_evaluations=args.n_evaluations,
-        truncate_last_trajectory=args.truncate_last_trajectory,
-        uuid_str=f"_{uuid.uuid4()}" if args.uuid else "",
-        seed=args.seed,
-        log_interval=args.log_interval,
-        save_replay_buffer=args.save_replay_buffer,
-        verbose=args.verbose,
-        vec_env_type=args.vec_env,
-        n_eval_envs=args.n_eval_envs,
-        no_optim_plots=args.no_optim_plots,
-        device=args.device,
-        config=args.conf_file,
-        show_progress=args.progress,
-        trial_id=args.trial_id,
-        quick=args.quick,
-        resume=args.resume,
-        progress=False if args.no_progress else None,
-        run_id=args.run_id,
+        **manager_arguments(args),
         progress_reporter=progress_reporter,
         check_only=check_only,
         command=command,
-        default_save_freq=args.save_freq is None,
         default_eval_freq=not has_flag(argv, "--eval-freq"),
-        classifier_start=args.classifier_start,
     )
     try:
         results = manager.setup_experiment()

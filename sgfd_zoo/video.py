@@ -15,18 +15,14 @@ from typing import Any
 
 import numpy as np
 
-from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_at_least, import_gym_packages
+from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_at_least, command_parser, import_gym_packages
 from sgfd_zoo.runs.safe import make_folder, write_file
 from sgfd_zoo.trained import TrainedAgent, add_agent_options, find_agent, load_model, make_env
 
 
 def video_parser() -> ZooArgumentParser:
     """The options of ``sgfd-zoo record-video``: enjoy's choice of agent and env, and the video's."""
-    parser = ZooArgumentParser(
-        prog="sgfd-zoo record-video",
-        description="Write an mp4 of a trained agent on any split and domain (imageio's ffmpeg; no system ffmpeg).",
-        epilog="e.g. sgfd-zoo record-video --algo sgfd_sac --env SGFD/MT-walker-walk-v0 -f logs --split extrapolation",
-    )
+    parser = command_parser("record-video")
     add_agent_options(parser)
     video = parser.add_argument_group("the video")
     video.add_argument("-n", "--n-timesteps", type=int, default=1000, metavar="STEPS", help="its length in env steps")

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from sgfd_zoo.algos import SGFD_ALGOS
-from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_env_id
+from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_env_id, command_parser
 from sgfd_zoo.config_checks import first_line
 from sgfd_zoo.hub import ARGS, CONFIG, ENV_KWARGS, METRICS, VEC_NORMALIZE, model_file, repository_id
 from sgfd_zoo.hub.push import METRIC_FILES
@@ -35,12 +35,7 @@ MAX_METRIC_BYTES = 256 * 2**20
 
 def load_parser() -> ZooArgumentParser:
     """The options of ``sgfd-zoo load-from-hub``: rl-zoo3's load_from_hub's, and ``--from-dir``."""
-    parser = ZooArgumentParser(
-        prog="sgfd-zoo load-from-hub",
-        description="Copy a run from the Hugging Face Hub (or a local copy of its repository) into a new run folder "
-        "of a log folder, where enjoy, record-video and evaluate find it.",
-        epilog="The model zip holds pickles (SB3's format): load runs only from people whose code you would run.",
-    )
+    parser = command_parser("load-from-hub")
     parser.add_argument("--algo", default="sgfd_sac", choices=SGFD_ALGOS, metavar="ALGO", help=", ".join(SGFD_ALGOS))
     parser.add_argument("--env", required=True, metavar="ENV_ID", help="the id it trained on")
     parser.add_argument("-f", "--folder", default="logs", help="the log folder to copy it into (default: logs)")

@@ -22,7 +22,7 @@ from typing import Any
 import yaml
 
 import sgfd_envs
-from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_at_least
+from sgfd_zoo.arguments import ZooArgumentParser, ZooError, check_at_least, command_parser
 from sgfd_zoo.config_checks import first_line
 from sgfd_zoo.hub import (
     ARGS,
@@ -45,12 +45,7 @@ METRIC_FILES = ("evaluations.npz", "evaluations_*.npz", "*.monitor.csv", "progre
 
 def push_parser() -> ZooArgumentParser:
     """The options of ``sgfd-zoo push-to-hub``: rl-zoo3's push_to_hub's, and ``--dry-run``."""
-    parser = ZooArgumentParser(
-        prog="sgfd-zoo push-to-hub",
-        description="Push a finished run to the Hugging Face Hub: its model, hyperparameters, the evaluation of every "
-        "split with its domains (model card and metadata) and a video. Log in first (hf auth login) or set HF_TOKEN.",
-        epilog="e.g. sgfd-zoo push-to-hub --algo sgfd_sac --env SGFD/MT-walker-walk-v0 -f logs -orga my-lab",
-    )
+    parser = command_parser("push-to-hub")
     parser.add_argument("--algo", default="sgfd_sac", metavar="ALGO", help="the run's algorithm (default: sgfd_sac)")
     parser.add_argument("--env", required=True, metavar="ENV_ID", help="the id it trained on")
     parser.add_argument("-f", "--folder", default="logs", help="the log folder (default: logs)")

@@ -31,7 +31,7 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 import yaml
@@ -81,6 +81,27 @@ def mark_finished(folder: Path, model: StoredFile, num_timesteps: int) -> None:
 
 
 # -- run folders -------------------------------------------------------------------------------------
+
+
+class FileInFolder:
+    """A read-only attribute of a run or a record (:class:`NamedRun`): the path of the file ``name`` in its folder.
+
+    :param name: the file's name
+    :param doc: what the file holds (the attribute's docstring)
+    """
+
+    def __init__(self, name: str, doc: str | None = None) -> None:
+        self.name = name
+        self.__doc__ = doc
+
+    @overload
+    def __get__(self, run: None, owner: type) -> FileInFolder: ...
+
+    @overload
+    def __get__(self, run: NamedRun, owner: type) -> Path: ...
+
+    def __get__(self, run: NamedRun | None, owner: type) -> Path | FileInFolder:
+        return self if run is None else run.path / self.name
 
 
 @dataclass(frozen=True)
@@ -174,25 +195,21 @@ class RunFolder(NamedRun):
     def model_path(self) -> Path:
         return self.path / f"{env_name(self.env_id)}.zip"
 
-    @property
-    def finished_marker(self) -> Path:
-        return self.path / FINISHED_MARKER
-
-    @property
-    def final_evaluation(self) -> Path:
-        """Where ``sgfd-zoo evaluate`` keeps the final model's evaluation, to reuse it."""
-        return self.path / "final_evaluation.json"
+    finished_marker = FileInFolder(FINISHED_MARKER, "Written after the final model: the run is finished.")
+    final_evaluation = FileInFolder(
+        "final_evaluation.json", "Where ``sgfd-zoo evaluate`` keeps the final model's evaluation, to reuse it."
+    )
 
     @property
     def command_file(self) -> Path:
         """The ``sgfd-zoo train`` command the run was last started or resumed with, to say how it goes on."""
         return self.config_dir / "command.txt"
 
-    @property
-    def legacy_command_file(self) -> Path:
-        """Where runs of earlier versions kept their ``sgfd-zoo train`` flags (a JSON list) beside a
-        ``command.txt`` that rl-zoo3 wrote (the process's command line, unquoted; a sweep's: Ray's worker's)."""
-        return self.path / "command.json"
+    legacy_command_file = FileInFolder(
+        "command.json",
+        "Where runs of earlier versions kept their ``sgfd-zoo train`` flags (a JSON list) beside a ``command.txt`` "
+        "that rl-zoo3 wrote (the process's command line, unquoted; a sweep's: Ray's worker's).",
+    )
 
     def train_argv(self) -> list[str] | None:
         """The flags after ``sgfd-zoo train`` of the run's latest recorded start, from :attr:`command_file`, or

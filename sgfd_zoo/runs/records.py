@@ -30,7 +30,7 @@ import yaml
 import sgfd_envs
 from sgfd_zoo.runs.bounded import RefusedFile, csv_rows, read_text
 from sgfd_zoo.runs.fields import finite_number, result_row, safe_name, whole_number
-from sgfd_zoo.runs.folders import NamedRun, RunFolder, read_evaluations, run_paths
+from sgfd_zoo.runs.folders import FileInFolder, NamedRun, RunFolder, read_evaluations, run_paths
 from sgfd_zoo.runs.safe import copy_file, load_yaml, make_folder, redact, refuse_links_inside, write_file, write_text
 
 FINAL_EVALUATION_FIELDS = ("algo", "env", "split", "seed", "mean_reward", "std_reward", "n_episodes")
@@ -53,17 +53,13 @@ class RunRecord(NamedRun):
     :param path: the record's folder
     """
 
-    @property
-    def final_evaluation(self) -> Path:
-        return self.path / "final_evaluation.csv"
-
-    @property
-    def diagnostics(self) -> Path:
-        return self.path / "diagnostics.csv"
-
-    @property
-    def source_file(self) -> Path:
-        return self.path / "source.txt"
+    final_evaluation = FileInFolder(
+        "final_evaluation.csv", "The final model's evaluation, a row per split (written last)."
+    )
+    diagnostics = FileInFolder("diagnostics.csv", "The logged figures the study reads, a row per logged step.")
+    source_file = FileInFolder(
+        "source.txt", "The run it was exported from: ``<algo>/<run>`` and its log folder's digest."
+    )
 
     def made_from(self, run: RunFolder) -> bool | None:
         """Whether this record was made from the log run ``run``; None for a record written before records named
