@@ -65,7 +65,6 @@ from sgfd_envs.registry import (
     MORPHOLOGY,
     check_benchmark_split,
     entry_of_kind,
-    task_entry,
 )
 from sgfd_envs.rendering import check_render
 from sgfd_envs.wrappers import FrameLag, ObserveParameter, check_observe_parameter, scale_to_unit
@@ -294,8 +293,7 @@ def make_dmcgb_env(
     :param texture_cache_mb: ``distracting_cs``: GPU memory (MiB) the sky's frames of the episode's video may take,
         each sent to the GPU once (past it, a frame is sent at each view; 0: no cache)
     """
-    # Any id of neither benchmark: a ValueError listing DMC-GB's ids.
-    entry = entry_of_kind(env_id, DMCGB2 if task_entry(env_id).variation == DMCGB2 else DMCGB)
+    entry = entry_of_kind(env_id, DMCGB, DMCGB2)
     common = _checked_common(env_id, split, obs_type, image_size, render_mode, render, texture_cache_mb)
     is_dmcgb2 = entry.variation == DMCGB2
 

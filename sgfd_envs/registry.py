@@ -147,12 +147,12 @@ def benchmark_of(env_id: str) -> str | None:
     return variation if variation in BENCHMARK_KINDS else None
 
 
-def entry_of_kind(env_id: str, variation: str) -> TaskEntry:
-    """The table row of an id of one kind, or a ValueError listing the ids of that kind."""
+def entry_of_kind(env_id: str, *variations: str) -> TaskEntry:
+    """The table row of an id of one of the kinds ``variations``, or a ValueError listing the ids of those kinds."""
     entry = task_entry(env_id)
-    if entry.variation != variation:
-        same_kind = tuple(i for i, e in TASKS.items() if e.variation == variation)
-        raise ValueError(f"env_id must be a {variation} id, one of {same_kind}, got {env_id!r}")
+    if entry.variation not in variations:
+        same_kind = tuple(i for i, e in TASKS.items() if e.variation in variations)
+        raise ValueError(f"env_id must be a {' or '.join(variations)} id, one of {same_kind}, got {env_id!r}")
     return entry
 
 

@@ -17,7 +17,13 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 import sgfd_envs
 from sgfd_envs import domains
-from sgfd_envs.builders import MorphologyWarning, StandInWarning, make_background_env, make_morphology_env
+from sgfd_envs.builders import (
+    MorphologyWarning,
+    StandInWarning,
+    make_background_env,
+    make_dmcgb_env,
+    make_morphology_env,
+)
 
 BACKGROUND_IDS = [env_id for env_id in sgfd_envs.SGFD_IDS if "/MT-" not in env_id]
 MT_IDS = [env_id for env_id in sgfd_envs.SGFD_IDS if "/MT-" in env_id]
@@ -320,6 +326,11 @@ def test_entry_points_refuse_ids_of_the_other_kind():
         make_background_env("SGFD/MT-walker-walk-v0")
     with pytest.raises(ValueError, match=r"env_id must be a morphology id, one of \('SGFD/MT-walker-walk-v0'"):
         make_morphology_env("SGFD/walker-walk-v0")
+    # the one builder of both DMC-GB benchmarks names the ids of both, and of nothing else
+    with pytest.raises(ValueError, match=r"env_id must be a DMCGB or DMCGB2 id, one of \('DMCGB/") as refused:
+        make_dmcgb_env("DCS/walker-walk-v0")
+    listed = str(refused.value).split(", got ")[0]
+    assert "'DMCGB2/walker-walk-v0'" in listed and "'DCS/" not in listed
 
 
 def test_variation_specific_kwargs_are_refused_by_the_other_kind():
