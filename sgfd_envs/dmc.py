@@ -13,7 +13,7 @@ drawn (materials, textures, the camera's pose for one render) and never the phys
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Generic, Protocol, TypeVar, cast, overload
+from typing import Any, Protocol
 
 import gymnasium as gym
 import mujoco
@@ -60,34 +60,6 @@ class DomainLabel:
     setting: int | None = None
     morphology_parameter: str | None = None
     morphology_value: float | None = None
-
-
-_Field = TypeVar("_Field")
-
-
-class _LabelField(Generic[_Field]):
-    """A read-only attribute of an env that is the field of the same name of the env's :class:`DomainLabel`.
-
-    :param doc: the attribute's docstring
-    """
-
-    def __init__(self, doc: str) -> None:
-        self.__doc__ = doc
-
-    def __set_name__(self, owner: type, name: str) -> None:
-        self._name = name
-
-    @overload
-    def __get__(self, env: None, owner: type | None = None) -> _LabelField[_Field]: ...
-
-    @overload
-    def __get__(self, env: DMCEnv, owner: type | None = None) -> _Field: ...
-
-    def __get__(self, env: DMCEnv | None, owner: type | None = None) -> _Field | _LabelField[_Field]:
-        return self if env is None else cast(_Field, getattr(env.label, self._name))
-
-    def __set__(self, env: DMCEnv, value: object) -> None:
-        raise AttributeError(f"{self._name} is read from the env's label, which is fixed when the env is made")
 
 
 class Distraction(Protocol):
@@ -223,14 +195,35 @@ class DMCEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # --- labels -----------------------------------------------------------------------------------
 
-    domain = _LabelField[int]('Index of this env\'s domain within its split (``info["domain"]``).')
-    split = _LabelField[str | None]("Name of this env's split.")
-    n_domains = _LabelField[int]("Number of domains in this env's split.")
-    setting = _LabelField[int | None]("MT setting 1..10 (None for background ids).")
-    morphology_parameter = _LabelField[str | None](
-        'Name of the length MT varies, e.g. ``"torso_length"`` (None for background ids).'
-    )
-    morphology_value = _LabelField[float | None]("The varied length in metres (None for background ids).")
+    @property
+    def domain(self) -> int:
+        """Index of this env's domain within its split (``info["domain"]``)."""
+        return self.label.domain
+
+    @property
+    def split(self) -> str | None:
+        """Name of this env's split."""
+        return self.label.split
+
+    @property
+    def n_domains(self) -> int:
+        """Number of domains in this env's split."""
+        return self.label.n_domains
+
+    @property
+    def setting(self) -> int | None:
+        """MT setting 1..10 (None for background ids)."""
+        return self.label.setting
+
+    @property
+    def morphology_parameter(self) -> str | None:
+        """Name of the length MT varies, e.g. ``"torso_length"`` (None for background ids)."""
+        return self.label.morphology_parameter
+
+    @property
+    def morphology_value(self) -> float | None:
+        """The varied length in metres (None for background ids)."""
+        return self.label.morphology_value
 
     @property
     def distraction(self) -> Distraction | None:
