@@ -62,24 +62,17 @@ def key_values(flag: str, items: Sequence[str] | None) -> dict[str, Any] | None:
     return read.values
 
 
-# SGFDExperimentManager's keyword arguments that are the parsed options of the same name, as rl-zoo3's train passes
-# them, by what they set: the run, its output, its settings, the hyperparameter search (Optuna), the zoo's own
-RUN_OPTIONS = ("algo", "log_folder", "tensorboard_log", "n_timesteps", "eval_freq", "trained_agent", "seed", "device")
-OUTPUT_OPTIONS = ("log_interval", "save_replay_buffer", "verbose", "n_eval_envs")
-SETTINGS_OPTIONS = ("hyperparams", "env_kwargs", "eval_env_kwargs")
-SEARCH_OPTIONS = ("optimize_hyperparameters", "storage", "study_name", "n_trials", "max_total_trials", "n_jobs")
-SEARCH_SETUP_OPTIONS = ("sampler", "pruner", "optimization_log_path", "n_startup_trials", "n_evaluations", "trial_id")
-SEARCH_OUTPUT_OPTIONS = ("truncate_last_trajectory", "no_optim_plots")
-ZOO_OPTIONS = ("quick", "resume", "run_id", "classifier_start")
+#: SGFDExperimentManager's keyword arguments that are the parsed options of the same name, as rl-zoo3's train passes
+#: them: the run, its output, its settings, the hyperparameter search (Optuna), the zoo's own
 SAME_NAMED_OPTIONS = (
-    *RUN_OPTIONS,
-    *OUTPUT_OPTIONS,
-    *SETTINGS_OPTIONS,
-    *SEARCH_OPTIONS,
-    *SEARCH_SETUP_OPTIONS,
-    *SEARCH_OUTPUT_OPTIONS,
-    *ZOO_OPTIONS,
-)
+    "algo", "log_folder", "tensorboard_log", "n_timesteps", "eval_freq", "trained_agent", "seed", "device",
+    "log_interval", "save_replay_buffer", "verbose", "n_eval_envs",
+    "hyperparams", "env_kwargs", "eval_env_kwargs",
+    "optimize_hyperparameters", "storage", "study_name", "n_trials", "max_total_trials", "n_jobs", "sampler",
+    "pruner", "optimization_log_path", "n_startup_trials", "n_evaluations", "trial_id", "truncate_last_trajectory",
+    "no_optim_plots",
+    "quick", "resume", "run_id", "classifier_start",
+)  # fmt: skip
 #: SGFDExperimentManager's keyword arguments that are parsed options of another name: keyword -> option
 RENAMED_OPTIONS = {
     "env_id": "env",
