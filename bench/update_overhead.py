@@ -1,7 +1,8 @@
 """
 Cost of one gradient step of SGFD_SAC and the paper's agents next to SB3's SAC, eager and compiled
-(``compile_update=True``: on CUDA one CUDA-graph replay per step plan; on the CPU SGFD's weight solver compiled by
-torch.compile), with the same policy, batch and replay data.
+(``compile_update=True``: on CUDA one CUDA-graph replay per step plan; on the CPU the optimisers stepping fused and
+SGFD's weight solver compiled by torch.compile), with the same policy, batch and replay data. On the CPU a row of SB3's
+SAC with fused Adam (``optimizer_kwargs=dict(fused=True)``) shows what the fused optimisers alone give.
 
 Two policies, and the agents:
 
@@ -114,6 +115,11 @@ def models_of(name: str, args: argparse.Namespace, device: th.device) -> dict[st
         "SAC": SAC(policy, make_env(), replay_buffer_class=DomainReplayBuffer, **common)
     }
     ways = [("compiled", True)] if args.compiled_only else [("eager", False), ("compiled", True)]
+    if device.type == "cpu" and name != "agents":
+        # SB3's SAC with the fused Adam that a compiled update steps with on the CPU: how much of the compiled rows'
+        # gain is the optimiser's alone
+        fused = dict(common, policy_kwargs=dict(policy_kwargs, optimizer_kwargs=dict(fused=True)))
+        models["SAC fused Adam"] = SAC(policy, make_env(), replay_buffer_class=DomainReplayBuffer, **fused)
     for way, compiled in ways:
         each = dict(common, compile_update=compiled)
         if name == "agents":
@@ -247,7 +253,10 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> dict
         eager = key.removesuffix("compiled") + "eager"
         if eager in times:
             print(f"{key.removesuffix(' compiled')}: compiled / eager {round_ratio(times, key, eager):.2f}x")
-            print_compile_time(key, eager, warmup_seconds, medians, args.warmup or (20 if gpu else 3))
+            print_compile_time(key, eager, warmup_seconds, times, args.warmup or (20 if gpu else 3))
+        if "SAC fused Adam" in times:
+            ratio = round_ratio(times, key, "SAC fused Adam")
+            print(f"  compiled / SAC with fused Adam {ratio:.2f}x (the additions' cost, both stepping fused)")
     if name == "agents":
         for way in ("eager", "compiled"):
             if f"AMBS {way}" in times:
@@ -257,12 +266,15 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> dict
 
 
 def print_compile_time(
-    compiled: str, eager: str, warmup_seconds: dict[str, float], medians: dict[str, float], steps: int
+    compiled: str, eager: str, warmup_seconds: dict[str, float], times: dict[str, list[float]], steps: int
 ) -> None:
     """The compiled update's one-off cost (its warm-up over the eager one's: compilation, captures) and the updates
-    after which its saving per update pays it back (none: it does not save)."""
+    after which its saving per update (from the ratio within rounds) pays it back."""
     cost = warmup_seconds[compiled] - warmup_seconds[eager]
-    saving_ms = medians[eager] - medians[compiled]
+    saving_ms = 1e3 * statistics.median(times[eager]) * (1 - round_ratio(times, compiled, eager))
+    if cost < 0.1:  # within the warm-ups' noise: nothing compiled or captured beyond what the eager one does
+        print(f"  no one-off cost over {steps} warm-up steps")
+        return
     payback = f"paid back after {1e3 * cost / saving_ms:,.0f} updates" if saving_ms > 0 else "never paid back"
     print(f"  compile and capture {cost:.1f} s over {steps} warm-up steps; {payback}")
 

@@ -74,8 +74,8 @@ class EncoderSAC(SAC):
         critic's step (the same values on states, where the features are the observations)
     :param compile_update: Run each gradient step as captured work (:mod:`sb3_sgfd.common.capture`): on CUDA one
         CUDA-graph replay per step plan with fused optimisers, the figures read once per log interval, what fuses
-        compiled; on the CPU, what fuses compiled (SGFD's solver). Off by default until a GPU has measured it
-        (``bench/device_check.py``)
+        compiled; on the CPU, the optimisers stepping fused and what fuses compiled (SGFD's solver). Off by default
+        until a GPU has measured it (``bench/device_check.py``)
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = policies.POLICY_ALIASES

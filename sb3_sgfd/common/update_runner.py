@@ -97,7 +97,7 @@ class UpdateRunner:
         """Before a ``train`` call's steps: the optimisers (``optimizers()``, listed only then) set up once, and again
         after :meth:`forget`; the figures counting from update ``n_updates``."""
         if not self.optimizers_prepared:
-            prepare_optimizers(optimizers(), self.capture)
+            prepare_optimizers(optimizers(), self.capture, fused=self.compiled)
             self.optimizers_prepared = True
         self.figures.start(n_updates)
 

@@ -10,25 +10,36 @@ import torch as th
 from stable_baselines3.common.logger import Logger
 from torch.utils._python_dispatch import TorchDispatchMode
 
+from sb3_sgfd import EncoderSAC
 from sb3_sgfd.common.capture import WARMUP_CALLS
 from sb3_sgfd.common.device_figures import DeviceFigures
 from sb3_sgfd.common.optimizers import prepare_optimizers, set_learning_rate
 from sb3_sgfd.sgfd.classifier import masked_step
-from tests.agents.tiny import AGENTS
+from tests.agents.tiny import AGENTS, COMMON, state_env
 
 STEPS = 45
 
 
-def trained(name: str, compile_update: bool, steps: int = STEPS, masked: bool | None = None, ready: bool = False):
+def trained(
+    name: str,
+    compile_update: bool,
+    steps: int = STEPS,
+    masked: bool | None = None,
+    ready: bool = False,
+    fused: bool = False,
+):
     """The agent after its buffer is filled and ``steps`` gradient steps from the same random streams.
 
     :param masked: decide with tensors inside the steps, as a captured step does on a GPU (None: as the runner does)
     :param ready: SGFD's paper reading with its weights on from the first step (its solver runs at once)
+    :param fused: the optimisers step fused, as ``compile_update`` has them (an eager model's are as SB3 makes them)
     """
     model = AGENTS[name](compile_update=compile_update)
     model.learn(model.learning_starts)  # fills the buffer; no gradient step yet
     model.num_timesteps = 10**6  # past SGFD's classifier_start
     model._prepare_update()
+    if fused:
+        prepare_optimizers(model._update_optimizers(), captured=False, fused=True)
     if masked is not None:
         model._update.masked = masked
     if ready:
@@ -53,9 +64,9 @@ def compared_parts(a, b) -> list[tuple[str, th.nn.Module, th.nn.Module]]:
 def test_the_captured_logic_trains_as_the_eager_one(name):
     # What a GPU captures, run on the CPU (the CPU twin of the captured step): every decision inside a step a tensor
     # (a masked classifier step, weights taken where they are on) instead of a Python branch. With torch.compile's
-    # code generation switched off (what it would compile runs as written), both run the same arithmetic: the same
-    # training, to the last bit, whatever the machine.
-    eager = trained(name, False)
+    # code generation switched off (what it would compile runs as written) and the eager model's optimisers fused as
+    # the compiled model's are, both run the same arithmetic: the same training, to the last bit, whatever the machine.
+    eager = trained(name, False, fused=True)
     with th._dynamo.config.patch(disable=True):
         captured = trained(name, True, masked=True)
     assert eager._n_updates == captured._n_updates == STEPS
@@ -219,3 +230,38 @@ def test_optimisers_set_up_for_a_captured_update_step_as_before_and_back():
     prepare_optimizers([optimizers[1]], captured=False)
     assert group["fused"] is None and abs(group["lr"] - 0.05) < 1e-8 and not group["capturable"]
     step(1)
+
+
+def test_fused_optimisers_step_as_before_and_eager_keeps_the_way_each_was_made():
+    # compile_update on the CPU steps fused without capturing: the rate and counters stay as SB3 keeps them; eager
+    # gives each optimiser back the way it was made (SB3's loop, or a fused one the user asked for)
+    th.manual_seed(0)
+    layers = [th.nn.Linear(3, 2) for _ in range(2)]
+    layers[1].load_state_dict(layers[0].state_dict())
+    made_fused = th.optim.Adam(layers[0].parameters(), lr=0.1, fused=True)
+    made_plain = th.optim.Adam(layers[1].parameters(), lr=0.1)
+    prepare_optimizers([made_fused, made_plain], captured=False, fused=True)
+    for optimizer in (made_fused, made_plain):
+        group = optimizer.param_groups[0]
+        assert group["fused"] and not group["foreach"] and not group["capturable"] and not th.is_tensor(group["lr"])
+    for optimizer, layer in zip((made_fused, made_plain), layers, strict=True):
+        optimizer.zero_grad()
+        layer(th.ones(4, 3)).square().sum().backward()
+        optimizer.step()
+    for a, b in zip(layers[0].parameters(), layers[1].parameters(), strict=True):
+        assert th.equal(a, b)
+    prepare_optimizers([made_fused, made_plain], captured=False)
+    assert made_fused.param_groups[0]["fused"] and made_plain.param_groups[0]["fused"] is None
+
+
+def test_a_model_steps_fused_with_compile_update_on_the_cpu_and_as_asked_without():
+    compiled = AGENTS["SGFD paper"](compile_update=True)
+    asked = dict(COMMON, policy_kwargs=dict(net_arch=[16, 16], optimizer_kwargs=dict(fused=True)))
+    eager = EncoderSAC("MlpPolicy", state_env(), **asked)
+    plain = AGENTS["EncoderSAC"]()
+    for model in (compiled, eager, plain):
+        model.learn(model.learning_starts + 2)
+    assert all(group["fused"] for o in compiled._update_optimizers() for group in o.param_groups)
+    # the policy's optimisers as its optimizer_kwargs made them (SB3 makes the entropy coefficient's without them)
+    assert all(group["fused"] for o in (eager.actor.optimizer, eager.critic.optimizer) for group in o.param_groups)
+    assert plain.critic.optimizer.param_groups[0]["fused"] is None  # SB3's own
