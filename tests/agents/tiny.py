@@ -13,7 +13,7 @@ import sgfd_envs
 from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, AMBSPolicy, CnnPolicy, EncoderSAC
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
-COMMON = dict(learning_starts=64, batch_size=16, seed=0, policy_kwargs=dict(net_arch=[16, 16]))
+COMMON = dict(learning_starts=64, batch_size=16, buffer_size=4000, seed=0, policy_kwargs=dict(net_arch=[16, 16]))
 PIXELS = dict(
     COMMON,
     policy_kwargs=dict(net_arch=[16, 16], features_extractor_kwargs=dict(features_dim=8, n_filters=4, n_layers=2)),

@@ -14,7 +14,7 @@ from sgfd_zoo.runs import training_state
 from sgfd_zoo.runs.training_state import RestoreTrainingState
 
 ENV_ID = "SGFD/MT-walker-walk-v0"
-TINY = dict(learning_starts=60, batch_size=16, seed=3, policy_kwargs=dict(net_arch=[16, 16]))
+TINY = dict(learning_starts=60, batch_size=16, buffer_size=1000, seed=3, policy_kwargs=dict(net_arch=[16, 16]))
 PIXELS = dict(
     TINY, policy_kwargs=dict(net_arch=[16, 16], features_extractor_kwargs=dict(features_dim=8, n_filters=4, n_layers=2))
 )
@@ -34,11 +34,11 @@ AGENTS = {
     "SAC": (SAC, lambda: SAC(MlpPolicy, state_env(), replay_buffer_class=DomainReplayBuffer, **TINY)),
     "SGFD_SAC": (
         SGFD_SAC,
-        lambda: SGFD_SAC("MlpPolicy", state_env(), classifier_start=100, classifier_iters=3, **TINY),
+        lambda: SGFD_SAC("MlpPolicy", state_env(), classifier_start=80, classifier_iters=3, **TINY),
     ),
     "SGFD_SAC official": (
         SGFD_SAC,
-        lambda: SGFD_SAC("MlpPolicy", state_env(), reading="official", classifier_start=100, **TINY),
+        lambda: SGFD_SAC("MlpPolicy", state_env(), reading="official", classifier_start=80, **TINY),
     ),
     "AMBS": (AMBS, lambda: AMBS(AMBSPolicy, pixel_env(), representation_kwargs=dict(hidden_dim=16), **PIXELS)),
 }
@@ -48,8 +48,8 @@ AGENTS = {
 @pytest.mark.parametrize("name", list(AGENTS))
 def test_n_steps_saved_and_resumed_then_n_more_are_2n_steps_straight(name, tmp_path):
     algo, make = AGENTS[name]
-    straight = make().learn(320)
-    first = make().learn(160)
+    straight = make().learn(240)
+    first = make().learn(120)
     # what a checkpoint holds: the model, the replay buffer and the training state (data: an .npz), taken between
     # two steps
     training_state.save(first, str(tmp_path / "state.npz"))
@@ -62,7 +62,7 @@ def test_n_steps_saved_and_resumed_then_n_more_are_2n_steps_straight(name, tmp_p
     resumed = algo.load(tmp_path / "model", env=pixel_env() if name == "AMBS" else state_env(), force_reset=False)
     resumed.load_replay_buffer(tmp_path / "buffer")
     restore = RestoreTrainingState(training_state.load(tmp_path / "state.npz"))
-    resumed.learn(160, reset_num_timesteps=False, callback=restore)
+    resumed.learn(120, reset_num_timesteps=False, callback=restore)
     env.close()
     assert resumed.num_timesteps == straight.num_timesteps and resumed._n_updates == straight._n_updates
     for (key, expected), (_, got) in zip(

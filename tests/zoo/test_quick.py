@@ -4,7 +4,6 @@ of a run evaluated once, and what ``sgfd-zoo evaluate`` says about unfinished ru
 from __future__ import annotations
 
 import contextlib
-import csv
 import io
 import json
 import shlex
@@ -105,25 +104,6 @@ def test_the_quick_job_refuses_a_folder_of_runs_of_another_length(tmp_path):
     quick.check_run_lengths(tmp_path, ["sgfd_sac", "sac"], ENV_ID, 100)  # the same length: kept, continued
     with pytest.raises(ZooError, match=r"holds runs of another length \(sac seed 0: 100 steps\); this job trains 4000"):
         quick.check_run_lengths(tmp_path, ["sgfd_sac", "sac"], ENV_ID, 4000)
-
-
-@pytest.mark.ray
-@pytest.mark.slow
-def test_a_short_quick_job_trains_sgfd_not_plain_sac(tmp_path):
-    # 1500 steps, the quick configuration's learning start at 1000: SGFD's classifier starts at 300 (a fifth).
-    code, out, err = zoo(["quick", "-n", "1500", "--seeds", "0", "--eval-episodes", "1", "-f", str(tmp_path)])
-    assert code == 0, err
-    assert "quick: sgfd_sac and sac on SGFD/MT-walker-walk-v0, seeds 0, 1500 steps per run, into " in out
-    assert "quick: SGFD's classifier starts at step 300 (the configuration's start moved" in out
-    sgfd, sac = (RunFolder(tmp_path / algo / f"{NAME}_1") for algo in ("sgfd_sac", "sac"))
-    assert sgfd.config["classifier_start"] == 300 and "classifier_start" not in sac.config
-    _, accuracy = sgfd.log("sgfd/classifier_accuracy")
-    _, ess = sgfd.log("sgfd/weight_ess")
-    assert len(accuracy) > 0 and (ess < 1).any(), "SGFD's classifier trained and its weights acted"
-    with (tmp_path / "results.csv").open() as handle:
-        returns = {(row["algo"], row["split"]): float(row["mean_reward"]) for row in csv.DictReader(handle)}
-    assert any(returns[("sgfd_sac", split)] != returns[("sac", split)] for split in ("train", "extrapolation"))
-    assert (tmp_path / "plots" / f"{NAME}.png").is_file()
 
 
 # -- curves and tables of a log folder --------------------------------------------------------------------

@@ -339,12 +339,12 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(algo, tmp_path):
     logs = tmp_path / "logs"
     params = ["-params", "learning_starts:200", "batch_size:32"]
     params += ["policy_kwargs:dict(net_arch=[32], features_extractor_kwargs=dict(features_dim=16))"]
-    every = 400  # steps between checkpoints and evaluations; the run is killed past 2, resumed to 4
-    save = ["--save-freq", str(every), "--eval-freq", str(every)]
+    every = 200  # steps between checkpoints (evaluations: every other); the run is killed past 2, resumed to 4
+    save = ["--save-freq", str(every), "--eval-freq", str(2 * every)]
     train_args = ["train", "--algo", algo, "--env", ENV_ID, "-f", str(logs), "--seed", "0", *TINY[:1]]
     train_args += ["--num-threads", "1", "--no-progress", "--verbose", "0", *params, "--eval-episodes", "1"]
     stalled = tmp_path / "stalled"
-    # the run stops advancing past its second checkpoint (800), before its third (1200), and is killed there
+    # the run stops advancing past its second checkpoint (400), before its third (600), and is killed there
     launcher = [sys.executable, "-m", "tests.zoo.stalled_run", str(2 * every + every // 2), str(stalled)]
     process = subprocess.Popen(
         [*launcher, *train_args, "-n", "100000", *save], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
@@ -377,8 +377,8 @@ def test_a_killed_run_resumes_from_its_last_checkpoint(algo, tmp_path):
     assert model.representation_model is not None and model.representation == algo
     with np.load(run / "evaluations_train.npz") as data:
         steps = data["timesteps"].tolist()
-    # The evaluations before the kill are kept and the resumed run appends to them.
-    assert steps[0] == every and steps[-1] == 4 * every and steps == sorted(steps)
+    # The evaluation before the kill is kept and the resumed run appends to it.
+    assert steps == [2 * every, 4 * every]
     assert RunFolder(run).finished
     kept = sorted(path.name for path in run.glob("checkpoint_*_steps.zip"))
     expected = sorted(f"checkpoint_{n * every}_steps.zip" for n in (3, 4))
@@ -466,12 +466,14 @@ def test_optimize_shares_a_study_through_a_journal_file(tmp_path):
 @pytest.mark.slow
 @pytest.mark.ray
 def test_the_quick_main_job_trains_both_evaluates_and_plots(tmp_path):
+    # 1500 steps, the quick configuration's learning start at 1000: SGFD's classifier starts at 300 (a fifth), so that
+    # SGFD trains as itself, not as plain SAC, for the run's last third
     record = tmp_path.parent / "quick.json"
-    result = zoo("quick", "-f", str(tmp_path), "-n", "600", "--eval-episodes", "1", "--record", str(record))
+    result = zoo("quick", "-f", str(tmp_path), "-n", "1500", "--eval-episodes", "1", "--record", str(record))
     assert "sweep: 4 trained, 0 already finished, 0 failed" in result.stdout  # two seeds by default
     # what it runs, said first; which figures are final and what it wrote (with sizes), said last
-    assert result.stdout.startswith("quick: sgfd_sac and sac on SGFD/MT-walker-walk-v0, seeds 0 1, 600 steps per run")
-    assert "quick: SGFD's classifier starts at step 120" in result.stdout
+    assert result.stdout.startswith("quick: sgfd_sac and sac on SGFD/MT-walker-walk-v0, seeds 0 1, 1500 steps per run")
+    assert "quick: SGFD's classifier starts at step 300 (the configuration's start moved" in result.stdout
     assert "quick: the tables above are the final figures: each run's final model evaluated on 1 episodes" in (
         result.stdout
     )
@@ -479,11 +481,17 @@ def test_the_quick_main_job_trains_both_evaluates_and_plots(tmp_path):
     assert re.search(r"and its checkpoints \([\d.]+ [kMG]?B, of which replay buffers [\d.]+ [kMG]?B\)", result.stdout)
     # each run's log says the settings it used where the configuration's printed ones differ
     (sgfd_log,) = (tmp_path / "sgfd_sac").glob("*_1.log")
-    assert "this run's settings where they differ from those above: classifier_start 120, n_timesteps 600" in (
+    assert "this run's settings where they differ from those above: classifier_start 300, n_timesteps 1500" in (
         sgfd_log.read_text()
     )
     saved = json.loads(record.read_text())
-    assert saved["command"].startswith("sgfd-zoo quick -f ") and saved["settings"]["classifier_start"] == 120
+    assert saved["command"].startswith("sgfd-zoo quick -f ") and saved["settings"]["classifier_start"] == 300
+    # SGFD's classifier trained and its weights acted; SAC's run has no classifier
+    sgfd, sac = (RunFolder(tmp_path / algo / f"{RUN_NAME}_1") for algo in ("sgfd_sac", "sac"))
+    assert sgfd.config["classifier_start"] == 300 and "classifier_start" not in sac.config
+    _, accuracy = sgfd.log("sgfd/classifier_accuracy")
+    _, ess = sgfd.log("sgfd/weight_ess")
+    assert len(accuracy) > 0 and (ess < 1).any(), "SGFD's classifier trained and its weights acted"
     assert saved["results"] == (tmp_path / "results.md").read_text()
     assert saved["aggregate"] == (tmp_path / "aggregate.md").read_text()
     # Progress while it runs (a log: the block at the end), and no Ray noise.
@@ -502,10 +510,12 @@ def test_the_quick_main_job_trains_both_evaluates_and_plots(tmp_path):
     assert {(row["algo"], row["split"]) for row in rows} == {
         (algo, split) for algo in ("sgfd_sac", "sac") for split in ("train", "interpolation", "extrapolation")
     }
+    returns = {(row["algo"], row["split"]): float(row["mean_reward"]) for row in rows}
+    assert any(returns[("sgfd_sac", split)] != returns[("sac", split)] for split in ("train", "extrapolation"))
     assert (tmp_path / "results.md").read_text() in result.stdout
     assert (tmp_path / "plots" / f"{RUN_NAME}.png").stat().st_size > 10_000
     # A second call keeps what is finished.
-    again = zoo("quick", "-f", str(tmp_path), "-n", "600", "--eval-episodes", "1")
+    again = zoo("quick", "-f", str(tmp_path), "-n", "1500", "--eval-episodes", "1")
     assert "0 trained, 4 already finished" in again.stdout
     # The sweep numbers runs from 1 as rl-zoo3 does, so enjoy's default (newest run) finds the agent.
     watched = zoo(
