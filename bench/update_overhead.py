@@ -1,8 +1,9 @@
 """
 Cost of one gradient step of SGFD_SAC and the paper's agents next to SB3's SAC, eager and compiled
-(``compile_update=True``: on CUDA one CUDA-graph replay per step plan; on the CPU the optimisers stepping fused and
-SGFD's weight solver compiled by torch.compile), with the same policy, batch and replay data. On the CPU a row of SB3's
-SAC with fused Adam (``optimizer_kwargs=dict(fused=True)``) shows what the fused optimisers alone give.
+(``compile_update=True``: on CUDA one CUDA-graph replay per step plan, SGFD's weight solver compiled by torch.compile;
+on the CPU the optimisers stepping fused), with the same policy, batch and replay data. On the CPU a row of SB3's SAC
+with fused Adam (``optimizer_kwargs=dict(fused=True)``) shows what the fused optimisers alone give, and a row of the
+steady phase with its solver compiled as on CUDA what torch.compile would add there (and when it would pay back).
 
 Two policies, and the agents:
 
@@ -49,9 +50,12 @@ from torch.utils._python_dispatch import TorchDispatchMode
 
 import sgfd_envs
 from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, AMBSPolicy, CnnPolicy, DomainReplayBuffer, MlpPolicy
+from sb3_sgfd.sgfd.decorrelation import paper_solution
 from sgfd_envs.backgrounds import overlay_bank
 
 PHASES = ("steady", "classifier", "mixed")
+#: The CPU's row of the steady phase compiled with SGFD's solver compiled as on CUDA (on the CPU it runs eager)
+SOLVER_COMPILED = "SGFD steady compiled, solver compiled"
 IMAGE_SIZE = [84]  # --image-size (the paper's 84; smaller only for a smoke run)
 
 
@@ -135,6 +139,11 @@ def models_of(name: str, args: argparse.Namespace, device: th.device) -> dict[st
         else:
             for phase in PHASES:
                 models[f"SGFD {phase} {way}"] = sgfd_in_phase(phase, policy, make_env(), **each)
+            if compiled and device.type == "cpu":
+                # the steady phase compiled with its solver compiled too (as on CUDA): what torch.compile adds alone
+                model = sgfd_in_phase("steady", policy, make_env(), **each)
+                model.weighting.core = th.compile(paper_solution, dynamic=False)
+                models[SOLVER_COMPILED] = model
     return models
 
 
@@ -257,6 +266,10 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> dict
         if "SAC fused Adam" in times:
             ratio = round_ratio(times, key, "SAC fused Adam")
             print(f"  compiled / SAC with fused Adam {ratio:.2f}x (the additions' cost, both stepping fused)")
+    if SOLVER_COMPILED in times:
+        ratio = round_ratio(times, SOLVER_COMPILED, "SGFD steady compiled")
+        print(f"SGFD steady: the solver compiled / left eager, both stepping fused {ratio:.2f}x")
+        print_compile_time(SOLVER_COMPILED, "SGFD steady compiled", warmup_seconds, times, args.warmup or 3)
     if name == "agents":
         for way in ("eager", "compiled"):
             if f"AMBS {way}" in times:

@@ -74,7 +74,7 @@ class EncoderSAC(SAC):
         critic's step (the same values on states, where the features are the observations)
     :param compile_update: Run each gradient step as captured work (:mod:`sb3_sgfd.common.capture`): on CUDA one
         CUDA-graph replay per step plan with fused optimisers, the figures read once per log interval, what fuses
-        compiled; on the CPU, the optimisers stepping fused and what fuses compiled (SGFD's solver). Off by default
+        compiled (SGFD's solver); on the CPU, the optimisers stepping fused (nothing compiled). Off by default
         until a GPU has measured it (``bench/device_check.py``)
     """
 

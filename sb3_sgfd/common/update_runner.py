@@ -12,7 +12,8 @@ The runner puts three parts together, each in its own module:
 Where a piece is captured (``compile_update`` on CUDA) every decision inside it must be a tensor (a graph replays what
 its capture ran); elsewhere (the CPU, and CUDA without ``compile_update``) a decision is a Python branch, which skips
 the work a mask would compute and discard (:attr:`UpdateRunner.masked`). What fuses (SGFD's weight solver) is compiled
-with ``torch.compile`` by its owner when ``compile_update`` is on.
+with ``torch.compile`` by its owner when ``compile_update`` is on CUDA; on the CPU ``compile_update`` steps the
+optimisers fused and compiles nothing.
 """
 
 from __future__ import annotations

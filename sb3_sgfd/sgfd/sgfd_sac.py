@@ -119,7 +119,10 @@ class SGFD_SAC(EncoderSAC):
             warnings.warn(SINGLE_DOMAIN_WARNING, stacklevel=user_stacklevel())
         features = self.critic.features_extractor.features_dim
         reading = READINGS[self.sgfd.reading]
-        return reading(features, self.n_domains, self.sgfd, self.rff_seed, self.device, self.compile_update)  # type: ignore[arg-type]
+        # The solver compiled where a step is captured (CUDA); on the CPU its compilation does not pay back (measured:
+        # bench/update_overhead.py's row of the solver compiled), so it runs eager there.
+        compile_solver = self.compile_update and self.device.type == "cuda"
+        return reading(features, self.n_domains, self.sgfd, self.rff_seed, self.device, compile_solver)  # type: ignore[arg-type]
 
     @property
     def classifier(self) -> th.nn.Module:

@@ -15,6 +15,7 @@ from sb3_sgfd.common.capture import WARMUP_CALLS
 from sb3_sgfd.common.device_figures import DeviceFigures
 from sb3_sgfd.common.optimizers import prepare_optimizers, set_learning_rate
 from sb3_sgfd.sgfd.classifier import masked_step
+from sb3_sgfd.sgfd.decorrelation import paper_solution
 from tests.agents.tiny import AGENTS, COMMON, state_env
 
 STEPS = 45
@@ -27,12 +28,14 @@ def trained(
     masked: bool | None = None,
     ready: bool = False,
     fused: bool = False,
+    compile_solver: bool = False,
 ):
     """The agent after its buffer is filled and ``steps`` gradient steps from the same random streams.
 
     :param masked: decide with tensors inside the steps, as a captured step does on a GPU (None: as the runner does)
     :param ready: SGFD's paper reading with its weights on from the first step (its solver runs at once)
     :param fused: the optimisers step fused, as ``compile_update`` has them (an eager model's are as SB3 makes them)
+    :param compile_solver: SGFD's solver compiled, as ``compile_update`` compiles it on CUDA
     """
     model = AGENTS[name](compile_update=compile_update)
     model.learn(model.learning_starts)  # fills the buffer; no gradient step yet
@@ -40,6 +43,8 @@ def trained(
     model._prepare_update()
     if fused:
         prepare_optimizers(model._update_optimizers(), captured=False, fused=True)
+    if compile_solver:  # SGFDWeighting(compile_solver=True)'s core
+        model.weighting.core = th.compile(model.weighting.core, dynamic=False)
     if masked is not None:
         model._update.masked = masked
     if ready:
@@ -85,6 +90,7 @@ def test_the_captured_logic_trains_as_the_eager_one(name):
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["SGFD paper", "SGFD official"])
 def test_a_compiled_step_computes_what_the_eager_step_computes(name):
+    # The solver compiled as compile_update compiles it on CUDA (on the CPU it stays eager: it does not pay there).
     # torch.compile's code (the weight solver's) orders its float32 arithmetic otherwise than the eager operators do,
     # so the two differ by rounding: over one step (before training compounds it) within float32's reach, relative
     # 1e-5 of each tensor, on any machine. Over many steps the runs drift apart as any two float32 orders do; that
@@ -92,7 +98,7 @@ def test_a_compiled_step_computes_what_the_eager_step_computes(name):
     eager = trained(name, False, steps=1, ready=True)
     th._dynamo.reset()  # no compiled code cached from an earlier test: the compiled run must make its own
     graphs = th._dynamo.utils.counters["stats"]["unique_graphs"]
-    compiled = trained(name, True, steps=1, ready=True)
+    compiled = trained(name, True, steps=1, ready=True, compile_solver=True)
     assert th._dynamo.utils.counters["stats"]["unique_graphs"] > graphs, "the solver ran uncompiled"
     for part, a, b in compared_parts(eager, compiled):
         for (key, expected), (_, got) in zip(a.state_dict().items(), b.state_dict().items(), strict=True):
@@ -262,6 +268,7 @@ def test_a_model_steps_fused_with_compile_update_on_the_cpu_and_as_asked_without
     for model in (compiled, eager, plain):
         model.learn(model.learning_starts + 2)
     assert all(group["fused"] for o in compiled._update_optimizers() for group in o.param_groups)
+    assert compiled.weighting.core is paper_solution  # the solver's compilation does not pay on the CPU
     # the policy's optimisers as its optimizer_kwargs made them (SB3 makes the entropy coefficient's without them)
     assert all(group["fused"] for o in (eager.actor.optimizer, eager.critic.optimizer) for group in o.param_groups)
     assert plain.critic.optimizer.param_groups[0]["fused"] is None  # SB3's own
