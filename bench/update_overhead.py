@@ -55,7 +55,7 @@ from sgfd_envs.backgrounds import overlay_bank
 
 PHASES = ("steady", "classifier", "mixed")
 #: The CPU's row of the steady phase compiled with SGFD's solver compiled as on CUDA (on the CPU it runs eager)
-SOLVER_COMPILED = "SGFD steady compiled, solver compiled"
+SOLVER_COMPILED = "SGFD steady compiled with its solver"
 IMAGE_SIZE = [84]  # --image-size (the paper's 84; smaller only for a smoke run)
 
 
