@@ -24,7 +24,7 @@ SPEC = {
     "algos": ["sgfd_sac", "sgfd_sac_no_saliency"],  # both SGFD: the classifier_start flag fits both
     "envs": [ENV_ID],
     "seeds": [0],
-    "train": [*("--quick", "-n", "400", "--eval-freq", "200", "--eval-episodes", "1"), *TINY_PARAMS],
+    "train": [*("--quick", "-n", "400", "--eval-freq", "400", "--eval-episodes", "1"), *TINY_PARAMS],
     "n_episodes": 1,
 }
 
