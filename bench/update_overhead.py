@@ -2,8 +2,9 @@
 Cost of one gradient step of SGFD_SAC and the paper's agents next to SB3's SAC, eager and compiled
 (``compile_update=True``: on CUDA one CUDA-graph replay per step plan, SGFD's weight solver compiled by torch.compile;
 on the CPU the optimisers stepping fused), with the same policy, batch and replay data. On the CPU a row of SB3's SAC
-with fused Adam (``optimizer_kwargs=dict(fused=True)``) shows what the fused optimisers alone give, and a row of the
-steady phase with its solver compiled as on CUDA what torch.compile would add there (and when it would pay back).
+with fused Adam (``optimizer_kwargs=dict(fused=True)``) shows what the fused optimisers alone give, and with
+``--solver-row`` a row of the steady phase with its solver compiled as on CUDA what torch.compile would add there (and
+when it would pay back).
 
 Two policies, and the agents:
 
@@ -28,7 +29,7 @@ pauses inside the pieces where CUDA replays a graph) and, apart, the operators i
 device without the host). Goal: the compiled update's host dispatches at most a tenth of SB3's eager SAC's.
 
     python bench/update_overhead.py                                  # mlp and cnn
-    python bench/update_overhead.py --policies mlp --rounds 30
+    python bench/update_overhead.py --policies mlp --rounds 30 --solver-row
     python bench/update_overhead.py --policies agents --rounds 5     # DBC, AMBS, SGFD on AMBS, TED, SGQN
     python bench/update_overhead.py --policies mlp --compiled-only   # SAC, and the compiled rows alone
 """
@@ -139,7 +140,7 @@ def models_of(name: str, args: argparse.Namespace, device: th.device) -> dict[st
         else:
             for phase in PHASES:
                 models[f"SGFD {phase} {way}"] = sgfd_in_phase(phase, policy, make_env(), **each)
-            if compiled and device.type == "cpu":
+            if compiled and device.type == "cpu" and args.solver_row:
                 # the steady phase compiled with its solver compiled too (as on CUDA): what torch.compile adds alone
                 model = sgfd_in_phase("steady", policy, make_env(), **each)
                 model.weighting.core = th.compile(paper_solution, dynamic=False)
@@ -309,6 +310,11 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=128)
     parser.add_argument("--fill", type=int, default=300, help="vec-env steps of data (x4 domains)")
     parser.add_argument("--compiled-only", action="store_true", help="SAC and the compiled models only")
+    parser.add_argument(
+        "--solver-row",
+        action="store_true",
+        help="on the CPU, also the steady phase with its solver compiled as on CUDA (seconds of compiling per policy)",
+    )
     parser.add_argument("--device", default="auto", help="cpu, cuda, or auto (cuda when available)")
     parser.add_argument("--image-size", type=int, default=84, help="pixel side of the cnn and agents rows")
     args = parser.parse_args()
