@@ -51,7 +51,6 @@ from torch.utils._python_dispatch import TorchDispatchMode
 
 import sgfd_envs
 from sb3_sgfd import AMBS, DBC, SGFD_SAC, SGQN, TED, AMBSPolicy, CnnPolicy, DomainReplayBuffer, MlpPolicy
-from sb3_sgfd.sgfd.decorrelation import paper_solution
 from sgfd_envs.backgrounds import overlay_bank
 
 PHASES = ("steady", "classifier", "mixed")
@@ -143,7 +142,7 @@ def models_of(name: str, args: argparse.Namespace, device: th.device) -> dict[st
             if compiled and device.type == "cpu" and args.solver_row:
                 # the steady phase compiled with its solver compiled too (as on CUDA): what torch.compile adds alone
                 model = sgfd_in_phase("steady", policy, make_env(), **each)
-                model.weighting.core = th.compile(paper_solution, dynamic=False)
+                model.weighting.compile_solver()
                 models[SOLVER_COMPILED] = model
     return models
 

@@ -25,7 +25,7 @@ Pure torch, no Stable-Baselines3 import.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
 import torch
@@ -137,8 +137,11 @@ class SGFDWeighting(SampleWeighting):
         self.classifier = DomainClassifier(n_features, max(n_domains, 2), hidden, orthogonal=self.official).to(device)
         self.memory = None if settings.reweight_memory is None else WeightMemory(settings.reweight_memory)
         self.rff_generator = torch.Generator(device=device).manual_seed(seed)
-        core = official_solution if self.official else paper_solution
-        self.core = torch.compile(core, dynamic=False) if compile_solver else core
+        #: The solver's arithmetic (:func:`paper_solution` or :func:`official_solution`), compiled by
+        #: :meth:`compile_solver`.
+        self.core: Callable[..., Any] = official_solution if self.official else paper_solution
+        if compile_solver:
+            self.compile_solver()
         #: Whether the weights are on (the paper's reading waits for its classifier; sticky), a 0-d bool tensor.
         self.ready = torch.tensor(self.official, device=device)
         #: One domain (given, or all the buffer holds when SGFD starts): nothing to decorrelate, SAC's steps.
@@ -146,6 +149,10 @@ class SGFDWeighting(SampleWeighting):
         self._domains_checked = False
         #: The paper reading's further classifier batches of this step (sampled before it, encoded inside it).
         self._fresh: list[Any] = []
+
+    def compile_solver(self) -> None:
+        """Run the solver's arithmetic through ``torch.compile`` (it fuses; what a captured step on CUDA uses)."""
+        self.core = torch.compile(self.core, dynamic=False)
 
     def active(self, num_timesteps: int) -> bool:
         """Whether the weighting does anything yet (before that, SGFD_SAC is SAC)."""

@@ -43,8 +43,8 @@ def trained(
     model._prepare_update()
     if fused:
         prepare_optimizers(model._update_optimizers(), captured=False, fused=True)
-    if compile_solver:  # SGFDWeighting(compile_solver=True)'s core
-        model.weighting.core = th.compile(model.weighting.core, dynamic=False)
+    if compile_solver:
+        model.weighting.compile_solver()
     if masked is not None:
         model._update.masked = masked
     if ready:
@@ -242,20 +242,25 @@ def test_fused_optimisers_step_as_before_and_eager_keeps_the_way_each_was_made()
     # compile_update on the CPU steps fused without capturing: the rate and counters stay as SB3 keeps them; eager
     # gives each optimiser back the way it was made (SB3's loop, or a fused one the user asked for)
     th.manual_seed(0)
-    layers = [th.nn.Linear(3, 2) for _ in range(2)]
-    layers[1].load_state_dict(layers[0].state_dict())
+    layers = [th.nn.Linear(3, 2) for _ in range(3)]
+    for layer in layers[1:]:
+        layer.load_state_dict(layers[0].state_dict())
     made_fused = th.optim.Adam(layers[0].parameters(), lr=0.1, fused=True)
     made_plain = th.optim.Adam(layers[1].parameters(), lr=0.1)
+    sb3s_loop = th.optim.Adam(layers[2].parameters(), lr=0.1)  # left as made: the reference
+    start = [parameter.detach().clone() for parameter in layers[0].parameters()]
     prepare_optimizers([made_fused, made_plain], captured=False, fused=True)
     for optimizer in (made_fused, made_plain):
         group = optimizer.param_groups[0]
         assert group["fused"] and not group["foreach"] and not group["capturable"] and not th.is_tensor(group["lr"])
-    for optimizer, layer in zip((made_fused, made_plain), layers, strict=True):
-        optimizer.zero_grad()
-        layer(th.ones(4, 3)).square().sum().backward()
-        optimizer.step()
-    for a, b in zip(layers[0].parameters(), layers[1].parameters(), strict=True):
-        assert th.equal(a, b)
+    for _ in range(3):
+        for optimizer, layer in zip((made_fused, made_plain, sb3s_loop), layers, strict=True):
+            optimizer.zero_grad()
+            layer(th.ones(4, 3)).square().sum().backward()
+            optimizer.step()
+    for fused_a, fused_b, loop, before in zip(*(layer.parameters() for layer in layers), start, strict=True):
+        assert th.equal(fused_a, fused_b) and not th.equal(loop, before)  # the steps moved the parameters
+        th.testing.assert_close(fused_a, loop)  # the same Adam as SB3's loop, rounded otherwise
     prepare_optimizers([made_fused, made_plain], captured=False)
     assert made_fused.param_groups[0]["fused"] and made_plain.param_groups[0]["fused"] is None
 
