@@ -22,6 +22,11 @@ updates after which it pays back. Every model updates its actor at every step, s
 the additions' own cost. Each timed round is ``--round-steps`` gradient steps of every model in turn, so all see the
 same machine load; the table gives the median over rounds of the time per step and of the ratio within a round.
 
+For the MLP on the CPU, the steady eager step's additions are also timed part by part, each alone in every round:
+the weights (the classifier's pass and the solver), the classifier's pass alone, and the solver's products alone
+(``2 x reweight_iters`` of them at the shapes of the batch's random Fourier features, the compute that any form of the
+exact solve performs), each as a share of SAC's step, beside what the goal of at most 1.2x leaves for them.
+
 Beside the time, the operator dispatches per update (a dispatch-mode counter; on a GPU each is a kernel launch of
 about 25 us): SB3's eager SAC, each eager update, and each compiled update as the host runs it once captured, i.e.
 everything outside its captured pieces plus one replay per piece (on the CPU, where nothing is captured, the counter
@@ -165,6 +170,55 @@ def check_phase(key: str, model: SGFD_SAC, first_update: int, steps_before: int)
     assert weighted == (phase != "classifier"), f"{key}: the weights were {'on' if weighted else 'off'}"
 
 
+def steady_parts(model: SGFD_SAC, batch_size: int) -> dict[str, Callable[[], object]]:
+    """What SGFD's steady step adds, as calls timed alone on one batch of the model's replay data: its weights (the
+    classifier's pass and the solver, ``weighting.solve``), the classifier's pass alone (predictions and saliency), and
+    the products the solver is made of alone (``2 x reweight_iters`` of them at the shapes of the batch's random
+    Fourier features: the compute no form of the exact solve avoids)."""
+    weighting, settings = model.weighting, model.sgfd
+    z = model.encode(model.replay_buffer.sample(batch_size).observations)  # type: ignore[union-attr]
+    generator = th.Generator(device=z.device).manual_seed(0)
+    n, width = z.shape[0], z.shape[1] * settings.n_rff
+    features = th.randn(n, width, generator=generator, device=z.device)
+    uniform = th.full((n, 1), 1.0 / n, device=z.device)
+    pairs = th.randn(width, width, generator=generator, device=z.device)
+
+    def products() -> None:
+        for _ in range(settings.reweight_iters):
+            features.T @ (uniform * features)  # the covariance under the weights
+            features @ pairs  # its gradient's product
+
+    products_key = f"the solver's {2 * settings.reweight_iters} products alone ({n} x {width} features)"
+    return {
+        "the weights: classifier pass and solver": lambda: weighting.solve(z, generator),
+        "the classifier's pass (predictions, saliency)": lambda: weighting.classifier.predictions_and_input_gradient(z),
+        products_key: products,
+    }
+
+
+def time_call(call: Callable[[], object], repeats: int) -> float:
+    """Seconds per call over ``repeats`` calls (on the CPU: nothing to synchronise)."""
+    start = time.perf_counter()
+    for _ in range(repeats):
+        call()
+    return (time.perf_counter() - start) / repeats
+
+
+def print_steady_parts(parts: dict[str, list[float]], times: dict[str, list[float]]) -> None:
+    """The steady eager step's additions over SAC's step, and each part timed alone, as ms and as a share of SAC's
+    step in the same round; beside them, what the goal of 1.2x leaves for all of SGFD's additions."""
+    added = [steady - sac for steady, sac in zip(times["SGFD steady eager"], times["SAC"], strict=True)]
+    rows = {"SGFD steady eager minus SAC": added, **parts}
+    print("\nSGFD steady eager, what it adds, each part timed alone (medians over rounds; share of SAC's step)\n")
+    width = max(len(key) for key in rows)
+    print(f"| {'part':<{width}} | {'ms per step':>11} | {'of SAC':>6} |")
+    print(f"|{'-' * (width + 2)}|{'-' * 13}|{'-' * 8}|")
+    for key, values in rows.items():
+        share = statistics.median(value / sac for value, sac in zip(values, times["SAC"], strict=True))
+        print(f"| {key:<{width}} | {1e3 * statistics.median(values):>11.2f} | {share:>6.2f} |")
+    print("at most 1.2x leaves 0.20 of SAC's step for everything SGFD adds in the steady phase")
+
+
 def synchronize(device: th.device) -> None:
     if device.type == "cuda":
         th.cuda.synchronize(device)
@@ -221,6 +275,26 @@ def dispatches_per_update(model: BaseAlgorithm, batch_size: int, steps: int = 4)
     return counter.host / steps, counter.inside / steps
 
 
+def timed_rounds(
+    models: dict[str, BaseAlgorithm],
+    parts: dict[str, Callable[[], object]],
+    rounds: int,
+    steps: int,
+    batch_size: int,
+    device: th.device,
+) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+    """Seconds per step of each model and per call of each part, in each round (all of them in turn, so that all see
+    the same machine load)."""
+    times: dict[str, list[float]] = {key: [] for key in models}
+    part_times: dict[str, list[float]] = {key: [] for key in parts}
+    for _ in range(rounds):
+        for key, model in models.items():
+            times[key].append(time_round(model, steps, batch_size, device))
+        for key, call in parts.items():
+            part_times[key].append(time_call(call, steps))
+    return times, part_times
+
+
 def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> dict[str, float]:
     models = models_of(name, args, device)
     gpu = device.type == "cuda"
@@ -233,12 +307,13 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> dict
         warmup_seconds[key] = warmup * time_round(model, warmup, args.batch_size, device)
     dispatches = {key: dispatches_per_update(model, args.batch_size) for key, model in models.items()}
     steps = args.round_steps or ((200 if gpu else 20) if name == "mlp" else (50 if gpu else 2))
-    times: dict[str, list[float]] = {key: [] for key in models}
     sgfd_models = {key: model for key, model in models.items() if isinstance(model, SGFD_SAC)}
     start = {key: (model._n_updates, classifier_steps(model)) for key, model in sgfd_models.items()}
-    for _ in range(args.rounds):
-        for key, model in models.items():
-            times[key].append(time_round(model, steps, args.batch_size, device))
+    steady = models.get("SGFD steady eager")
+    # the steady step's parts, alone (the MLP on the CPU, where the goal of 1.2x is set)
+    timed_alone = name == "mlp" and isinstance(steady, SGFD_SAC) and not gpu
+    parts = steady_parts(steady, args.batch_size) if timed_alone else {}  # type: ignore[arg-type]
+    times, part_times = timed_rounds(models, parts, args.rounds, steps, args.batch_size, device)
     for key, model in sgfd_models.items():
         check_phase(key, model, *start[key])
 
@@ -253,6 +328,8 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> dict
         host, inside = dispatches[key]
         ratio = round_ratio(times, key, "SAC")
         print(f"| {key:<{width}} | {medians[key]:>11.2f} | {ratio:>5.2f}x | {host:>10.0f} | {inside:>9.0f} |")
+    if parts:
+        print_steady_parts(part_times, times)
     sac_dispatches = dispatches["SAC"][0]
     compiled = [key for key in times if key.endswith("compiled")]
     if gpu and compiled:  # what a captured update saves: the host's dispatches (on the CPU nothing is captured)
