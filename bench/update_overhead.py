@@ -283,15 +283,19 @@ def timed_rounds(
     batch_size: int,
     device: th.device,
 ) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
-    """Seconds per step of each model and per call of each part, in each round (all of them in turn, so that all see
-    the same machine load)."""
+    """Seconds per step of each model and per call of each part, in each round: all of them in turn, so that all see
+    the same machine load, in an order rotated by one place each round, so that each takes every place in turn (a
+    slower stretch of the machine falls on none of them more than on the others)."""
     times: dict[str, list[float]] = {key: [] for key in models}
     part_times: dict[str, list[float]] = {key: [] for key in parts}
-    for _ in range(rounds):
-        for key, model in models.items():
-            times[key].append(time_round(model, steps, batch_size, device))
-        for key, call in parts.items():
-            part_times[key].append(time_call(call, steps))
+    timed: list[tuple[str, Callable[[], float]]] = [
+        *((key, lambda model=model: time_round(model, steps, batch_size, device)) for key, model in models.items()),
+        *((key, lambda call=call: time_call(call, steps)) for key, call in parts.items()),
+    ]
+    for index in range(rounds):
+        shift = index % len(timed)
+        for key, measure in timed[shift:] + timed[:shift]:
+            (times if key in times else part_times)[key].append(measure())
     return times, part_times
 
 
