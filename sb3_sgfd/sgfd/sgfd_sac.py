@@ -119,8 +119,8 @@ class SGFD_SAC(EncoderSAC):
             warnings.warn(SINGLE_DOMAIN_WARNING, stacklevel=user_stacklevel())
         features = self.critic.features_extractor.features_dim
         reading = READINGS[self.sgfd.reading]
-        # The solver compiled where a step is captured (CUDA); on the CPU its compilation does not pay back (measured:
-        # bench/update_overhead.py's row of the solver compiled), so it runs eager there.
+        # The solver compiled where a step is captured (CUDA); on the CPU its compilation does not pay back within a
+        # quick run (measured: bench/update_overhead.py's row of the solver compiled), so it runs eager there.
         compile_solver = self.compile_update and self.device.type == "cuda"
         return reading(features, self.n_domains, self.sgfd, self.rff_seed, self.device, compile_solver)  # type: ignore[arg-type]
 
