@@ -234,10 +234,11 @@ class SGFDWeighting(SampleWeighting):
         return super()._apply(fn, recurse)
 
 
-def fused_where_supported(device: torch.device) -> dict[str, bool]:
-    """The classifier's optimiser steps fused (one kernel per step instead of a dozen operators per parameter: the
-    same Adam or SGD, rounded otherwise) on the devices whose fused kernels torch has for both (CPU, CUDA)."""
-    return {"fused": True} if device.type in ("cpu", "cuda") else {}
+def fused_where_supported(classifier: torch.nn.Module) -> bool | None:
+    """Whether the classifier's optimiser steps fused (one kernel per step instead of a dozen operators per parameter:
+    the same Adam or SGD, rounded otherwise): on the devices whose fused kernels torch has for both (CPU, CUDA); None
+    (torch's default) elsewhere."""
+    return True if next(classifier.parameters()).device.type in ("cpu", "cuda") else None
 
 
 def checked(domains: Tensor | None) -> Tensor:
@@ -257,7 +258,7 @@ class PaperWeighting(SGFDWeighting):
         self.classifier_optimizer = torch.optim.Adam(
             self.classifier.parameters(),
             lr=self.settings.classifier_lr,
-            **fused_where_supported(self.classifier.net[0].weight.device),
+            fused=fused_where_supported(self.classifier),
         )
 
     def active(self, num_timesteps: int) -> bool:
@@ -389,7 +390,7 @@ class OfficialWeighting(SGFDWeighting):
             lr=self.settings.classifier_lr,
             momentum=0.9,
             weight_decay=1e-4,
-            **fused_where_supported(self.classifier.net[0].weight.device),
+            fused=fused_where_supported(self.classifier),
         )
 
     def reading_plan(self, update_index: int, num_timesteps: int, weights_wanted: bool) -> WeightingPlan:
