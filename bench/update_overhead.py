@@ -325,13 +325,16 @@ def bench_policy(name: str, args: argparse.Namespace, device: th.device) -> dict
     print(f"\n## {name}: obs {shape}, batch {args.batch_size}, {args.rounds} rounds of {steps} steps\n")
     width = max(len(key) for key in times)
     header = f"| {'update':<{width}} | {'ms per step':>11} | {'vs SAC':>6} | {'dispatches':>10} | {'in graphs':>9} |"
+    header += " vs SAC, quartiles over rounds |"
     print(header)
-    print(f"|{'-' * (width + 2)}|{'-' * 13}|{'-' * 8}|{'-' * 12}|{'-' * 11}|")
+    print(f"|{'-' * (width + 2)}|{'-' * 13}|{'-' * 8}|{'-' * 12}|{'-' * 11}|{'-' * 31}|")
     medians = {key: 1e3 * statistics.median(values) for key, values in times.items()}
     for key in times:
         host, inside = dispatches[key]
         ratio = round_ratio(times, key, "SAC")
-        print(f"| {key:<{width}} | {medians[key]:>11.2f} | {ratio:>5.2f}x | {host:>10.0f} | {inside:>9.0f} |")
+        low, high = round_quartiles(times, key, "SAC")
+        row = f"| {key:<{width}} | {medians[key]:>11.2f} | {ratio:>5.2f}x | {host:>10.0f} | {inside:>9.0f} |"
+        print(f"{row} {f'{low:.2f}-{high:.2f}x':>29} |")
     if parts:
         print_steady_parts(part_times, times)
     sac_dispatches = dispatches["SAC"][0]
@@ -377,6 +380,16 @@ def round_ratio(times: dict[str, list[float]], key: str, base: str) -> float:
     """The median over rounds of the time of ``key`` over that of ``base`` in the same round: the machine's speed
     drifts between rounds, and a ratio within one round cancels most of it."""
     return statistics.median(value / reference for value, reference in zip(times[key], times[base], strict=True))
+
+
+def round_quartiles(times: dict[str, list[float]], key: str, base: str) -> tuple[float, float]:
+    """The first and third quartiles over rounds of the ratio that :func:`round_ratio` gives the median of: how far the
+    machine moved it within one run."""
+    ratios = [value / reference for value, reference in zip(times[key], times[base], strict=True)]
+    if len(ratios) < 2:
+        return ratios[0], ratios[0]
+    low, _, high = statistics.quantiles(ratios, n=4, method="inclusive")
+    return low, high
 
 
 def main() -> None:
