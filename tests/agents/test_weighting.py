@@ -188,6 +188,18 @@ def test_reading_sets_the_defaults_and_each_stays_overridable():
         SGFD_SAC("MlpPolicy", state_env(), reading="offical", **TINY)
 
 
+@pytest.mark.parametrize("reading", ["paper", "official"])
+def test_the_classifiers_optimiser_steps_fused_and_stays_so_through_an_eager_step(reading):
+    # its own optimiser, made fused where torch has the kernels (the CPU here): one kernel per step, the same Adam or
+    # SGD; an eager step gives each optimiser back the way it was made, so it stays fused
+    model = SGFD_SAC("MlpPolicy", state_env(), reading=reading, classifier_start=0, **dict(TINY, learning_starts=40))
+    optimizer = model.weighting.classifier_optimizer
+    assert optimizer.defaults["fused"] is True
+    model.learn(48)
+    assert all(group["fused"] is True for group in optimizer.param_groups)
+    assert not any(group["foreach"] for group in optimizer.param_groups)
+
+
 @pytest.mark.slow
 def test_official_reading_weights_the_actor_from_the_first_update_and_trains_its_classifier_with_sgd(tmp_path):
     model = SGFD_SAC("MlpPolicy", state_env(), reading="official", classifier_start=300, classifier_interval=2, **TINY)
