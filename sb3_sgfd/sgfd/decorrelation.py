@@ -49,7 +49,7 @@ def draw_fourier(
 
 
 def fourier_features(z: Tensor, omega: Tensor, psi: Tensor) -> Tensor:
-    return math.sqrt(2.0) * torch.cos(z.unsqueeze(-1) * omega + psi)
+    return torch.cos(torch.addcmul(psi, z.unsqueeze(-1), omega)).mul_(math.sqrt(2.0))
 
 
 def official_fourier_features(
@@ -114,15 +114,17 @@ def scaled_loss_gradient(features: Tensor, a: Tensor, doubled_pairs: Tensor, cov
     With S = (P + P^T) / 2 and C the covariance, L = sum S * C^2 and dL/dC = G = (P + P^T) * C;
 
     - "weighted": C = sum_k a_k (u_k - mu)(u_k - mu)^T with mu = sum_k a_k u_k, so
-      dL/da_k = (u_k - mu)^T G (u_k - mu) (mu moves with a, but L is stationary in mu at the weighted mean);
+      dL/da_k = (u_k - mu)^T G (u_k - mu) (mu moves with a, but L is stationary in mu at the weighted mean); as
+      sum_k a_k (u_k - mu) = 0, C = sum_k (u_k - mu) a_k u_k^T: the weighted rows give both mu and C;
     - "literal" (eq. 5 as printed): C = Vc^T Vc / (n - 1) with V = diag(n a) U centred, so
       dL/da_k = 2 n / (n - 1) (Vc G)_k . u_k.
 
     Each is exact up to a term equal for every sample, which the solver's softmax cancels.
     """
     if covariance == "weighted":
-        centred = features - a @ features
-        cov = centred.T @ (a.unsqueeze(1) * centred)
+        weighted = a.unsqueeze(1) * features
+        centred = features - weighted.sum(dim=0)
+        cov = centred.T @ weighted
         return ((centred @ (doubled_pairs * cov)) * centred).sum(dim=1), cov
     n = features.shape[0]
     products = n * a.unsqueeze(1) * features
@@ -258,7 +260,8 @@ def solve_weights(
     z = z.detach().to(torch.float64 if z.dtype == torch.float64 else torch.float32)
     if feature_std is not None:
         # Constant features become 0 and so drop out of the loss.
-        z = feature_std * (z - z.mean(dim=0)) / z.std(dim=0).clamp_min(1e-8)
+        std, mean = torch.std_mean(z, dim=0)
+        z = feature_std * (z - mean) / std.clamp_min(1e-8)
     omega, psi = draw_fourier((d, n_rff), (d, n_rff), z, generator) if use_rff else (None, None)
     probs = z.new_full((d,), 1.0 / d) if feature_probs is None else feature_probs.detach().to(z)
     remembered, fixed_logits = (None, None) if memory is None else memory.rows(z)
