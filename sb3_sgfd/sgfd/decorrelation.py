@@ -82,13 +82,20 @@ def _official_features(x: Tensor, omega: Tensor, psi: Tensor) -> Tensor:
 # --- 2. The decorrelation loss and its gradient ---
 
 
+def weighted_centred_covariance(u: Tensor, a: Tensor) -> tuple[Tensor, Tensor]:
+    """The rows of u (n, D) centred on their mean under the distribution a (n,), and their covariance (D, D) under it,
+    sum_k a_k (u_k - mu)(u_k - mu)^T. As sum_k a_k (u_k - mu) = 0, the covariance is sum_k (u_k - mu) a_k u_k^T: the
+    weighted rows give both mu and the covariance."""
+    weighted = a.unsqueeze(1) * u
+    centred = u - weighted.sum(dim=0)
+    return centred, centred.T @ weighted
+
+
 def covariance_matrix(u: Tensor, weights: Tensor, covariance: str) -> Tensor:
     """Covariance matrix (D, D) of the columns of u (n, D) under the sample weights."""
     if covariance == "weighted":
         # Covariance of the reweighted distribution: sum_k w_k (u_k - mu_w)(u_k - mu_w)^T / sum_k w_k.
-        w = weights / weights.sum()
-        centred = u - w @ u
-        return centred.T @ (w.unsqueeze(1) * centred)
+        return weighted_centred_covariance(u, weights / weights.sum())[1]
     # Paper eq. 5 as printed: the plain covariance of the products w_k u_k.
     wu = weights.unsqueeze(1) * u
     centred = wu - wu.mean(dim=0)
@@ -114,17 +121,14 @@ def scaled_loss_gradient(features: Tensor, a: Tensor, doubled_pairs: Tensor, cov
     With S = (P + P^T) / 2 and C the covariance, L = sum S * C^2 and dL/dC = G = (P + P^T) * C;
 
     - "weighted": C = sum_k a_k (u_k - mu)(u_k - mu)^T with mu = sum_k a_k u_k, so
-      dL/da_k = (u_k - mu)^T G (u_k - mu) (mu moves with a, but L is stationary in mu at the weighted mean); as
-      sum_k a_k (u_k - mu) = 0, C = sum_k (u_k - mu) a_k u_k^T: the weighted rows give both mu and C;
+      dL/da_k = (u_k - mu)^T G (u_k - mu) (mu moves with a, but L is stationary in mu at the weighted mean);
     - "literal" (eq. 5 as printed): C = Vc^T Vc / (n - 1) with V = diag(n a) U centred, so
       dL/da_k = 2 n / (n - 1) (Vc G)_k . u_k.
 
     Each is exact up to a term equal for every sample, which the solver's softmax cancels.
     """
     if covariance == "weighted":
-        weighted = a.unsqueeze(1) * features
-        centred = features - weighted.sum(dim=0)
-        cov = centred.T @ weighted
+        centred, cov = weighted_centred_covariance(features, a)
         return ((centred @ (doubled_pairs * cov)) * centred).sum(dim=1), cov
     n = features.shape[0]
     products = n * a.unsqueeze(1) * features
